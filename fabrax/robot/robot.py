@@ -1,0 +1,235 @@
+"""`Robot`: a kinematic tree, limits, collision spheres and self-collision pairs.
+
+Static structure (joint tree, names) lives in hashable fields; numbers are
+array leaves, so a `Robot` passes straight through `jax.jit` and `jax.vmap`.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from fabrax.robot import kinematics, spheres as sphere_lib
+from fabrax.robot.urdf import REVOLUTE, KinematicTree, parse_urdf
+
+
+@struct.dataclass
+class Robot:
+    name: str = struct.field(pytree_node=False)
+    joint_names: tuple = struct.field(pytree_node=False)
+    joint_parent: tuple = struct.field(pytree_node=False)
+    joint_revolute: tuple = struct.field(pytree_node=False)
+    frame_names: tuple = struct.field(pytree_node=False)
+    sphere_link_names: tuple = struct.field(pytree_node=False)
+    joint_axis: jax.Array  # (n, 3)
+    joint_origin_r: jax.Array  # (n, 3, 3)
+    joint_origin_t: jax.Array  # (n, 3)
+    lower: jax.Array  # (n,)
+    upper: jax.Array
+    velocity: jax.Array
+    acceleration: jax.Array
+    jerk: jax.Array
+    link_frame: jax.Array  # (L,) frame index, 0 = base
+    link_offset_r: jax.Array  # (L, 3, 3)
+    link_offset_t: jax.Array  # (L, 3)
+    frame_parent: jax.Array  # (F,) named frames: links first, then extra frames
+    frame_offset_r: jax.Array
+    frame_offset_t: jax.Array
+    sphere_frame: jax.Array  # (S,)
+    sphere_local: jax.Array  # (S, 3) centre in its frame
+    sphere_radius: jax.Array  # (S,)
+    sphere_link: jax.Array  # (S,) index into sphere_link_names
+    pair_i: jax.Array  # (P,) self-collision sphere pairs
+    pair_j: jax.Array
+
+    @property
+    def dof(self) -> int:
+        return len(self.joint_names)
+
+    @property
+    def n_spheres(self) -> int:
+        return int(self.sphere_radius.shape[-1])
+
+    def frame_index(self, name: str) -> int:
+        if name not in self.frame_names:
+            raise ValueError(f"frame '{name}' is not defined on robot '{self.name}' (frames: {', '.join(self.frame_names)})")
+        return self.frame_names.index(name)
+
+    def frame_point(self, name: str, offset=(0.0, 0.0, 0.0)):
+        """(frame index, local position) of a point rigidly attached to a named frame."""
+        i = self.frame_index(name)
+        local = self.frame_offset_r[i] @ jnp.asarray(offset, self.frame_offset_t.dtype) + self.frame_offset_t[i]
+        return self.frame_parent[i], local
+
+    def within_limits(self, q, tol: float = 0.0):
+        return jnp.all((q >= self.lower - tol) & (q <= self.upper + tol), axis=-1)
+
+    def clip(self, q):
+        return jnp.clip(q, self.lower, self.upper)
+
+
+def panda_urdf() -> Path:
+    """The Franka Panda URDF shipped by the `example-robot-data` package."""
+    for f in importlib.metadata.files("example-robot-data") or []:
+        if str(f).endswith("panda_description/urdf/panda.urdf"):
+            return Path(f.locate())
+    raise ValueError("example-robot-data is installed without the Panda URDF")
+
+
+def _rt(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return m[..., :3, :3], m[..., :3, 3]
+
+
+def _rpy(rpy) -> np.ndarray:
+    r, p, y = rpy
+    rx = np.array([[1, 0, 0], [0, np.cos(r), -np.sin(r)], [0, np.sin(r), np.cos(r)]])
+    ry = np.array([[np.cos(p), 0, np.sin(p)], [0, 1, 0], [-np.sin(p), 0, np.cos(p)]])
+    rz = np.array([[np.cos(y), -np.sin(y), 0], [np.sin(y), np.cos(y), 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def self_collision_pairs(
+    tree: KinematicTree,
+    sphere_frame: np.ndarray,
+    sphere_pos_fn,
+    radius: np.ndarray,
+    n_samples: int,
+    max_fraction: float,
+    reference_qs: np.ndarray,
+    seed: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Sphere pairs that must be checked for self-collision.
+
+    Excluded: spheres on one rigid body or on adjacent bodies, and pairs that
+    overlap at more than `max_fraction` of random configurations within limits
+    or at any reference configuration (such pairs cannot be told apart from
+    the robot's own resting contact).
+    """
+    s = len(radius)
+    i, j = np.triu_indices(s, 1)
+    parent = np.concatenate([[-1], np.asarray(tree.joint_parent) + 1])  # frame -> parent frame
+    fi, fj = sphere_frame[i], sphere_frame[j]
+    keep = (fi != fj) & (parent[fi] != fj) & (parent[fj] != fi)
+    i, j = i[keep], j[keep]
+    rng = np.random.default_rng(seed)
+    lo = np.where(np.isfinite(tree.lower), tree.lower, -np.pi)
+    hi = np.where(np.isfinite(tree.upper), tree.upper, np.pi)
+    qs = np.concatenate([rng.uniform(lo, hi, (n_samples, len(lo))), np.atleast_2d(reference_qs)])
+    pos = np.asarray(jax.jit(jax.vmap(sphere_pos_fn))(jnp.asarray(qs, jnp.float32)))
+    gap = np.linalg.norm(pos[:, i] - pos[:, j], axis=-1) - radius[i] - radius[j]
+    overlap = gap < 0
+    keep = (overlap[:n_samples].mean(0) <= max_fraction) & ~overlap[n_samples:].any(0)
+    return i[keep].astype(np.int32), j[keep].astype(np.int32)
+
+
+def build_robot(cfg: dict[str, Any]) -> Robot:
+    """Build a `Robot` from a config mapping (see configs/robot/panda.yaml).
+
+    Keys: urdf (path, or null for the example-robot-data Panda), active_joints,
+    held, acceleration, jerk, frames, spheres {source: fit|file, budget,
+    tolerance, file, set}, self_collision {samples, max_fraction, reference_q}.
+    """
+    known = {"name", "urdf", "active_joints", "held", "acceleration", "jerk", "frames", "spheres", "self_collision", "default_q"}
+    unknown = set(cfg) - known
+    if unknown:
+        raise ValueError(f"unknown robot config keys {sorted(unknown)} (known: {sorted(known)})")
+    urdf = cfg.get("urdf") or panda_urdf()
+    tree = parse_urdf(urdf, cfg.get("active_joints"), cfg.get("held"))
+    n = tree.dof
+
+    def per_joint(key, default):
+        v = np.asarray(cfg.get(key) if cfg.get(key) is not None else default, dtype=np.float64)
+        v = np.broadcast_to(v, (n,)).copy()
+        if not np.all(v > 0):
+            raise ValueError(f"robot.{key} must be positive for every joint, got {v}")
+        return v
+
+    acceleration = per_joint("acceleration", 10.0)
+    jerk = per_joint("jerk", 5000.0)
+
+    # named frames: every link, plus extra frames {name: {parent, xyz, rpy}}
+    frame_names = list(tree.link_names)
+    frame_parent = list(tree.link_frame + 1)
+    frame_offset = list(tree.link_offset)
+    for fname, spec in (cfg.get("frames") or {}).items():
+        spec = dict(spec)
+        parent = tree.link_index(spec.get("parent", ""))
+        local = np.eye(4)
+        local[:3, :3] = _rpy(spec.get("rpy", (0.0, 0.0, 0.0)))
+        local[:3, 3] = spec.get("xyz", (0.0, 0.0, 0.0))
+        frame_names.append(fname)
+        frame_parent.append(tree.link_frame[parent] + 1)
+        frame_offset.append(tree.link_offset[parent] @ local)
+
+    # collision spheres, expressed in the frame that carries their link
+    sph_cfg = dict(cfg.get("spheres") or {})
+    source = sph_cfg.get("source", "fit")
+    if source == "fit":
+        per_link = sphere_lib.fitted_spheres(
+            tree, int(sph_cfg.get("budget", 60)), float(sph_cfg.get("tolerance", 0.001)), seed=int(sph_cfg.get("seed", 0))
+        )
+    elif source == "file":
+        per_link = sphere_lib.load_sphere_file(sph_cfg["file"], sph_cfg.get("set"))
+    else:
+        raise ValueError(f"robot.spheres.source must be 'fit' or 'file', got '{source}'")
+    s_frame, s_local, s_radius, s_link, link_names = [], [], [], [], []
+    for link, items in per_link.items():
+        li = tree.link_index(link)
+        link_names.append(link)
+        for s in items:
+            off = tree.link_offset[li]
+            s_frame.append(tree.link_frame[li] + 1)
+            s_local.append(off[:3, :3] @ np.asarray(s["center"], float) + off[:3, 3])
+            s_radius.append(float(s["radius"]))
+            s_link.append(len(link_names) - 1)
+
+    origin_r, origin_t = _rt(tree.joint_origin)
+    link_r, link_t = _rt(tree.link_offset)
+    frame_r, frame_t = _rt(np.stack(frame_offset))
+    f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+    robot = Robot(
+        name=cfg.get("name") or tree.name,
+        joint_names=tree.joint_names,
+        joint_parent=tuple(int(p) for p in tree.joint_parent),
+        joint_revolute=tuple(bool(t == REVOLUTE) for t in tree.joint_type),
+        frame_names=tuple(frame_names),
+        sphere_link_names=tuple(link_names),
+        joint_axis=f32(tree.joint_axis),
+        joint_origin_r=f32(origin_r),
+        joint_origin_t=f32(origin_t),
+        lower=f32(tree.lower),
+        upper=f32(tree.upper),
+        velocity=f32(tree.velocity),
+        acceleration=f32(acceleration),
+        jerk=f32(jerk),
+        link_frame=jnp.asarray(tree.link_frame + 1, jnp.int32),
+        link_offset_r=f32(link_r),
+        link_offset_t=f32(link_t),
+        frame_parent=jnp.asarray(frame_parent, jnp.int32),
+        frame_offset_r=f32(frame_r),
+        frame_offset_t=f32(frame_t),
+        sphere_frame=jnp.asarray(s_frame, jnp.int32),
+        sphere_local=f32(np.asarray(s_local).reshape(-1, 3)),
+        sphere_radius=f32(s_radius),
+        sphere_link=jnp.asarray(s_link, jnp.int32),
+        pair_i=jnp.zeros((0,), jnp.int32),
+        pair_j=jnp.zeros((0,), jnp.int32),
+    )
+    sc = dict(cfg.get("self_collision") or {})
+    reference = np.asarray(sc.get("reference_q", cfg.get("default_q")) or np.zeros((0, n)), dtype=np.float64).reshape(-1, n)
+    pi, pj = self_collision_pairs(
+        tree,
+        np.asarray(s_frame),
+        lambda q: kinematics.sphere_centers(robot, q),
+        np.asarray(s_radius),
+        int(sc.get("samples", 1000)),
+        float(sc.get("max_fraction", 0.01)),
+        reference,
+    )
+    return robot.replace(pair_i=jnp.asarray(pi), pair_j=jnp.asarray(pj))

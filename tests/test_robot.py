@@ -1,0 +1,165 @@
+import json
+import re
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from fabrax import config
+from fabrax.robot import build_robot, link_poses, panda_urdf, parse_urdf, point_kinematics, sphere_centers
+from fabrax.robot import spheres as sphere_lib
+
+TWO_LINK = """<?xml version="1.0"?>
+<robot name="planar">
+  <link name="base"><collision><geometry><cylinder radius="0.05" length="0.1"/></geometry></collision></link>
+  <link name="upper"><collision><origin xyz="0.15 0 0" rpy="0 1.5707963 0"/><geometry><cylinder radius="0.03" length="0.3"/></geometry></collision>
+    <inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <link name="fore"><collision><origin xyz="0.1 0 0"/><geometry><box size="0.2 0.04 0.04"/></geometry></collision>
+    <inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <link name="slider"><collision><geometry><sphere radius="0.03"/></geometry></collision>
+    <inertial><mass value="0.1"/><inertia ixx="0.001" iyy="0.001" izz="0.001" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <joint name="shoulder" type="revolute"><parent link="base"/><child link="upper"/><origin xyz="0 0 0.1" rpy="0.3 0 0"/>
+    <axis xyz="0 0.6 0.8"/><limit lower="-2" upper="2" velocity="1" effort="1"/></joint>
+  <joint name="elbow" type="revolute"><parent link="upper"/><child link="fore"/><origin xyz="0.3 0 0" rpy="0 0 0.2"/>
+    <axis xyz="0 0 1"/><limit lower="-2" upper="2" velocity="1" effort="1"/></joint>
+  <joint name="slide" type="prismatic"><parent link="fore"/><child link="slider"/><origin xyz="0.2 0 0"/>
+    <axis xyz="1 0 0"/><limit lower="0" upper="0.1" velocity="1" effort="1"/></joint>
+</robot>
+"""
+
+
+def mujoco_model(urdf_text: str) -> mujoco.MjModel:
+    xml = re.sub(r"<visual>.*?</visual>", "", urdf_text, flags=re.S)
+    xml = re.sub(r"<collision>.*?</collision>", "", xml, flags=re.S)
+    xml = re.sub(r"<robot ([^>]*)>", r'<robot \1><mujoco><compiler fusestatic="false" discardvisual="true"/></mujoco>', xml, count=1)
+    return mujoco.MjModel.from_xml_string(xml)
+
+
+def compare_with_mujoco(robot, urdf_text, held, n=50, seed=0):
+    model = mujoco_model(urdf_text)
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(seed)
+    poses = jax.jit(jax.vmap(lambda q: link_poses(robot, q)))
+    lo, hi = np.asarray(robot.lower), np.asarray(robot.upper)
+    qs = rng.uniform(lo, hi, (n, robot.dof))
+    ours = poses(jnp.asarray(qs, jnp.float32))
+    names = [model.body(i).name for i in range(model.nbody)]
+    worst = 0.0
+    for k, q in enumerate(qs):
+        for i, jname in enumerate(robot.joint_names):
+            data.qpos[model.joint(jname).qposadr[0]] = q[i]
+        for jname, v in held.items():
+            data.qpos[model.joint(jname).qposadr[0]] = v
+        mujoco.mj_kinematics(model, data)
+        for li, lname in enumerate(robot.frame_names[: len(ours.translation()[0])]):
+            if lname not in names:
+                continue
+            b = names.index(lname)
+            worst = max(worst, float(np.abs(np.asarray(ours.translation()[k, li]) - data.xpos[b]).max()))
+            rot = np.asarray(ours.rotation().as_matrix()[k, li])
+            assert np.allclose(rot, data.xmat[b].reshape(3, 3), atol=1e-5), lname
+    return worst
+
+
+def test_fk_matches_mujoco_panda(panda):
+    held = {"panda_finger_joint1": 0.04, "panda_finger_joint2": 0.04}
+    worst = compare_with_mujoco(panda, panda_urdf().read_text(), held)
+    assert worst <= 1e-5
+
+
+def test_any_urdf_arm(tmp_path):
+    """A non-Panda arm with tilted axes, a prismatic joint and primitive collisions."""
+    path = tmp_path / "planar.urdf"
+    path.write_text(TWO_LINK)
+    robot = build_robot({"urdf": str(path), "spheres": {"budget": 8}, "self_collision": {"samples": 100}})
+    assert robot.dof == 3 and robot.joint_revolute == (True, True, False)
+    assert compare_with_mujoco(robot, TWO_LINK, {}) <= 1e-5
+    assert robot.n_spheres <= 8 and set(robot.sphere_link_names) == {"base", "upper", "fore", "slider"}
+
+
+def test_point_kinematics_against_finite_differences(panda):
+    with jax.enable_x64(True):
+        rng = np.random.default_rng(1)
+        q = jnp.asarray(rng.uniform(panda.lower, panda.upper), jnp.float64)
+        qd = jnp.asarray(rng.normal(size=7), jnp.float64)
+        frame, local = panda.sphere_frame, panda.sphere_local.astype(jnp.float64)
+        x, jac, xd, jdqd = point_kinematics(panda, q, qd, frame, local)
+        f = lambda q_: sphere_centers(panda, q_)  # noqa: E731
+        eps = 1e-6
+        fd_jac = jnp.stack([(f(q + eps * e) - f(q - eps * e)) / (2 * eps) for e in jnp.eye(7)], -1)
+        assert jnp.allclose(x, f(q), atol=1e-6)
+        assert jnp.allclose(jac, fd_jac, atol=1e-5)
+        assert jnp.allclose(xd, jnp.einsum("sij,j->si", jac, qd), atol=1e-9)
+        # Jdot qd = d/dt (J qd) along qd: second directional difference of positions
+        fd_curv = (f(q + 1e-4 * qd) - 2 * f(q) + f(q - 1e-4 * qd)) / 1e-8
+        assert jnp.allclose(jdqd, fd_curv, atol=1e-4)
+
+
+def test_limits_from_urdf_and_config(panda):
+    assert np.allclose(panda.lower, [-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973])
+    assert np.allclose(panda.velocity, [2.175] * 4 + [2.61] * 3)
+    assert np.allclose(panda.acceleration, [15, 7.5, 10, 12.5, 15, 20, 20])
+    assert np.allclose(panda.jerk, [7500, 3750, 5000, 6250, 7500, 10000, 10000])
+
+
+def test_limits_match_shared_file(panda, shared_data):
+    limits = json.loads((shared_data / "panda_limits.json").read_text())
+    for key in ("position_lower", "position_upper", "velocity", "acceleration", "jerk"):
+        ours = {"position_lower": panda.lower, "position_upper": panda.upper}.get(key, getattr(panda, key, None))
+        assert np.allclose(ours, limits[key], atol=1e-6), key
+
+
+def test_fitted_spheres_cover_collision_meshes():
+    """Every surface sample (drawn independently of the fit) lies within 5 mm of a sphere."""
+    tree = parse_urdf(panda_urdf(), held={"panda_finger_joint1": 0.04})
+    spheres = sphere_lib.fitted_spheres(tree, 60)
+    assert sum(map(len, spheres.values())) <= 60
+    for link, meshes in sphere_lib.link_meshes(tree).items():
+        pts, _ = sphere_lib.sample_surface(meshes, 0.002, seed=12345)
+        c = np.array([s["center"] for s in spheres[link]])
+        r = np.array([s["radius"] for s in spheres[link]])
+        gap = (np.sqrt(((pts[:, None] - c[None]) ** 2).sum(-1)) - r).min(1)
+        assert gap.max() <= 0.005, f"{link}: a surface point is {gap.max() * 1000:.1f} mm outside every sphere"
+        # and the cover is tight: no sphere centre lies outside the link's geometry
+        inside = np.zeros(len(c), bool)
+        for m in meshes:
+            inside |= m.contains(c)
+        assert inside.all(), link
+        assert cKDTree(pts).query(c)[0].min() >= 0.0
+
+
+def test_sphere_set_from_file(shared_data):
+    cfg = config.load("robot", "panda")
+    cfg["spheres"] = {"source": "file", "file": str(shared_data / "panda_spheres.json"), "set": "curobo"}
+    robot = build_robot(cfg)
+    assert robot.n_spheres == 61
+    assert robot.pair_i.shape[0] > 0
+
+
+def test_self_collision_pairs(panda):
+    frame = np.asarray(panda.sphere_frame)
+    i, j = np.asarray(panda.pair_i), np.asarray(panda.pair_j)
+    assert len(i) > 100
+    assert np.all(frame[i] != frame[j])
+    parents = np.concatenate([[-1], np.asarray(panda.joint_parent) + 1])
+    assert not np.any(parents[frame[i]] == frame[j]) and not np.any(parents[frame[j]] == frame[i])
+    # the ready posture is free of self-collision under the kept pairs
+    x = sphere_centers(panda, jnp.asarray(config.load("robot", "panda")["default_q"], jnp.float32))
+    gap = jnp.linalg.norm(x[i] - x[j], axis=-1) - panda.sphere_radius[i] - panda.sphere_radius[j]
+    assert float(gap.min()) > 0
+
+
+def test_bad_robot_inputs(tmp_path):
+    bad = tmp_path / "bad.urdf"
+    bad.write_text("<robot><link name='a'>")
+    with pytest.raises(ValueError, match="malformed URDF"):
+        build_robot({"urdf": str(bad)})
+    with pytest.raises(ValueError, match="unknown robot config keys"):
+        build_robot({"urdf": None, "budget": 3})
+    with pytest.raises(ValueError, match="not found"):
+        build_robot({"urdf": str(tmp_path / "missing.urdf")})
+    with pytest.raises(ValueError, match="acceleration"):
+        build_robot({"acceleration": [-1.0] * 7})
