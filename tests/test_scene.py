@@ -1,0 +1,100 @@
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial import cKDTree
+
+from fabrax import scene as sc
+
+SCENE = {
+    "obstacles": [
+        {"type": "cuboid", "center": [0.5, 0.1, 0.3], "quat_wxyz": [0.9, 0.1, 0.3, 0.2], "size": [0.3, 0.1, 0.2]},
+        {"type": "cylinder", "center": [-0.2, 0.4, 0.5], "quat_wxyz": [0.7, 0.5, 0.1, 0.0], "radius": 0.08, "length": 0.4},
+        {"type": "sphere", "center": [0.0, -0.5, 0.6], "radius": 0.12},
+    ]
+}
+
+
+def meshes():
+    out = []
+    for o in SCENE["obstacles"]:
+        if o["type"] == "cuboid":
+            m = trimesh.creation.box(extents=o["size"])
+        elif o["type"] == "cylinder":
+            m = trimesh.creation.cylinder(radius=o["radius"], height=o["length"], sections=256)
+        else:
+            m = trimesh.creation.icosphere(subdivisions=5, radius=o["radius"])
+        t = np.eye(4)
+        if "quat_wxyz" in o:
+            t[:3, :3] = trimesh.transformations.quaternion_matrix(np.asarray(o["quat_wxyz"]) / np.linalg.norm(o["quat_wxyz"]))[:3, :3]
+        t[:3, 3] = o["center"]
+        m.apply_transform(t)
+        out.append(m)
+    return out
+
+
+def test_signed_distance_matches_brute_force():
+    scene = sc.from_dict(SCENE, capacity={"cuboids": 3, "spheres": 2})
+    rng = np.random.default_rng(0)
+    pts = rng.uniform([-0.6, -0.9, -0.1], [1.0, 0.8, 1.0], (400, 3))
+    ours = np.asarray(sc.signed_distances(scene, jnp.asarray(pts, jnp.float32)))
+    mask = np.asarray(sc.primitive_mask(scene))
+    ours = ours[:, mask]
+    for k, m in enumerate(meshes()):
+        brute = cKDTree(m.sample(300_000, seed=k)).query(pts)[0]
+        sign = np.where(m.contains(pts), -1.0, 1.0)
+        assert np.allclose(ours[:, k], sign * brute, atol=3e-3), k
+    assert np.all(np.asarray(sc.signed_distances(scene, jnp.zeros((2, 3))))[:, ~mask] == sc.FAR)
+
+
+def test_distance_gradient_and_curvature_against_finite_differences():
+    with jax.enable_x64(True):
+        scene = jax.tree.map(lambda a: a.astype(jnp.float64) if a.dtype == jnp.float32 else a, sc.from_dict(SCENE))
+        rng = np.random.default_rng(1)
+        p = jnp.asarray(rng.uniform([-0.6, -0.9, -0.1], [1.0, 0.8, 1.0], (50, 3)))
+        pd = jnp.asarray(rng.normal(size=(50, 3)))
+        d, n, dd, curv, mask = sc.distance_kinematics(scene, p, pd)
+        f = lambda x: sc.signed_distances(scene, x)  # noqa: E731
+        h = 1e-6
+        fd_grad = jnp.stack([(f(p + h * e) - f(p - h * e)) / (2 * h) for e in jnp.eye(3)], -1)
+        assert jnp.allclose(d, f(p))
+        assert jnp.allclose(n, fd_grad, atol=1e-6)
+        assert jnp.allclose(dd, jnp.einsum("nkj,nj->nk", n, pd))
+        h = 1e-4
+        fd_curv = (f(p + h * pd) - 2 * f(p) + f(p - h * pd)) / h**2
+        assert jnp.allclose(curv, fd_curv, atol=1e-3)
+
+
+def test_padding_and_stacking():
+    a = sc.from_dict(SCENE)
+    b = sc.from_dict({"obstacles": [SCENE["obstacles"][0]] * 4, "points": [[0, 0, 2.0], [0, 0, 3.0]]})
+    batch = sc.stack([a, b])
+    assert batch.capacity == {"cuboids": 4, "cylinders": 1, "spheres": 1, "points": 2}
+    pts = jnp.asarray([[0.5, 0.1, 0.8], [0.0, 0.0, 1.8]])
+    d = jax.vmap(sc.distance, in_axes=(0, None))(batch, pts)
+    assert np.allclose(d[0], sc.distance(a, pts), atol=1e-6)
+    assert np.allclose(d[1], sc.distance(b, pts), atol=1e-6)
+    assert np.isclose(d[1, 1], 0.2, atol=1e-6)  # nearest cloud point
+    assert sc.to_dict(a)["obstacles"][1]["type"] == "cylinder"
+    round_trip = sc.from_dict(sc.to_dict(a))
+    assert np.allclose(sc.distance(round_trip, pts), sc.distance(a, pts), atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "bad, field",
+    [
+        ({"type": "cuboid", "center": [0, 0, 0], "size": [0.1, -0.2, 0.1]}, r"obstacles\[0\]\.size"),
+        ({"type": "sphere", "center": [0, float("nan"), 0], "radius": 0.1}, r"obstacles\[0\]\.center"),
+        ({"type": "cylinder", "center": [0, 0, 0], "radius": 0.1}, "length"),
+        ({"type": "cone", "center": [0, 0, 0]}, "type"),
+    ],
+)
+def test_bad_scene_raises_named_field(bad, field):
+    with pytest.raises(ValueError, match=field):
+        sc.from_dict({"obstacles": [bad]})
+
+
+def test_capacity_overflow_raises():
+    with pytest.raises(ValueError, match="capacity"):
+        sc.from_dict({"obstacles": SCENE["obstacles"] * 2}, capacity={"cuboids": 1})
