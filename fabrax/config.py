@@ -25,3 +25,19 @@ def load(group: str, name: str) -> dict[str, Any]:
         options = sorted(p.stem for p in (config_dir() / group).glob("*.yaml"))
         raise ValueError(f"no config '{name}' in group '{group}' (options: {', '.join(options)})")
     return OmegaConf.to_container(OmegaConf.load(path), resolve=True)
+
+
+def load_robot(name: str = "panda"):
+    """A `Robot` from configs/robot/<name>.yaml."""
+    from fabrax.robot import build_robot
+
+    return build_robot(load("robot", name))
+
+
+def load_fabric(robot, name: str = "panda"):
+    """An `ArmFabric` and its default parameters from configs/fabric/<name>.yaml."""
+    from fabrax.fabrics import build_arm_fabric
+
+    posture = load("robot", robot.name).get("default_q") if (config_dir() / "robot" / f"{robot.name}.yaml").exists() else None
+    fabric = build_arm_fabric(robot, load("fabric", name), posture=posture)
+    return fabric, fabric.init()

@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from fabrax import config
-from fabrax.robot import build_robot, link_poses, panda_urdf, parse_urdf, point_kinematics, sphere_centers
+from fabrax.robot import build_robot, link_poses, panda_urdf, parse_urdf, point_kinematics, points, sphere_centers
 from fabrax.robot import spheres as sphere_lib
 
 TWO_LINK = """<?xml version="1.0"?>
@@ -86,7 +86,8 @@ def test_point_kinematics_against_finite_differences(panda):
         q = jnp.asarray(rng.uniform(panda.lower, panda.upper), jnp.float64)
         qd = jnp.asarray(rng.normal(size=7), jnp.float64)
         frame, local = panda.sphere_frame, panda.sphere_local.astype(jnp.float64)
-        x, jac, xd, jdqd = point_kinematics(panda, q, qd, frame, local)
+        kin = point_kinematics(panda, q, qd, frame, local)
+        x, xd, jdqd, jac = kin.x.T, kin.xd.T, kin.jdqd.T, kin.jac.transpose(2, 0, 1)  # (N, 3), (N, 3, n)
         f = lambda q_: sphere_centers(panda, q_)  # noqa: E731
         eps = 1e-6
         fd_jac = jnp.stack([(f(q + eps * e) - f(q - eps * e)) / (2 * eps) for e in jnp.eye(7)], -1)
@@ -163,3 +164,23 @@ def test_bad_robot_inputs(tmp_path):
         build_robot({"urdf": str(tmp_path / "missing.urdf")})
     with pytest.raises(ValueError, match="acceleration"):
         build_robot({"acceleration": [-1.0] * 7})
+
+
+def test_point_kinematics_matches_forward_autodiff(panda, tmp_path):
+    """The recursive (analytic) kinematics equal nested jvps of FK, also with a prismatic joint."""
+    path = tmp_path / "planar.urdf"
+    path.write_text(TWO_LINK)
+    other = build_robot({"urdf": str(path), "spheres": {"budget": 8}, "self_collision": {"samples": 100}})
+    with jax.enable_x64(True):
+        for robot in (panda, other):
+            rng = np.random.default_rng(3)
+            q = jnp.asarray(rng.uniform(robot.lower, robot.upper))
+            qd = jnp.asarray(rng.normal(size=robot.dof))
+            frame, local = robot.sphere_frame, robot.sphere_local.astype(jnp.float64)
+            f = lambda q_: points(robot, q_, frame, local)  # noqa: E731
+            (x, xd), (_, jdqd) = jax.jvp(lambda q_: jax.jvp(f, (q_,), (qd,)), (q,), (qd,))
+            ours = point_kinematics(robot, q, qd, frame, local)
+            assert jnp.allclose(ours.x, x.T, atol=1e-10)
+            assert jnp.allclose(ours.jac, jnp.moveaxis(jax.jacfwd(f)(q), 0, -1), atol=1e-10)
+            assert jnp.allclose(ours.xd, xd.T, atol=1e-10)
+            assert jnp.allclose(ours.jdqd, jdqd.T, atol=1e-10)

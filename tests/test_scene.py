@@ -54,16 +54,19 @@ def test_distance_gradient_and_curvature_against_finite_differences():
         rng = np.random.default_rng(1)
         p = jnp.asarray(rng.uniform([-0.6, -0.9, -0.1], [1.0, 0.8, 1.0], (50, 3)))
         pd = jnp.asarray(rng.normal(size=(50, 3)))
-        d, n, dd, curv, mask = sc.distance_kinematics(scene, p, pd)
-        f = lambda x: sc.signed_distances(scene, x)  # noqa: E731
+        d, n, dd, curv, mask = sc.distance_kinematics(scene, p.T, pd.T)
+        f = lambda x: sc.signed_distances(scene, x).T  # noqa: E731  (K, N)
         h = 1e-6
-        fd_grad = jnp.stack([(f(p + h * e) - f(p - h * e)) / (2 * h) for e in jnp.eye(3)], -1)
+        fd_grad = jnp.stack([(f(p + h * e) - f(p - h * e)) / (2 * h) for e in jnp.eye(3)])
         assert jnp.allclose(d, f(p))
         assert jnp.allclose(n, fd_grad, atol=1e-6)
-        assert jnp.allclose(dd, jnp.einsum("nkj,nj->nk", n, pd))
+        assert jnp.allclose(dd, jnp.einsum("ckn,nc->kn", n, pd))
         h = 1e-4
         fd_curv = (f(p + h * pd) - 2 * f(p) + f(p - h * pd)) / h**2
         assert jnp.allclose(curv, fd_curv, atol=1e-3)
+        # inside points too (negative distances)
+        inside = jnp.asarray([[0.5, 0.12, 0.31], [-0.2, 0.41, 0.52], [0.02, -0.48, 0.6]])
+        assert jnp.all(jnp.diag(sc.signed_distances(scene, inside)) < 0)
 
 
 def test_padding_and_stacking():

@@ -1,11 +1,12 @@
 """Robots from URDF: kinematic tree, forward kinematics, limits, collision spheres."""
 
-from fabrax.robot.kinematics import frame_pose, frame_transforms, link_poses, point_kinematics, points, sphere_centers
+from fabrax.robot.kinematics import PointKinematics, frame_pose, frame_transforms, link_poses, point_kinematics, points, sphere_centers
 from fabrax.robot.robot import Robot, build_robot, panda_urdf
 from fabrax.robot.urdf import KinematicTree, parse_urdf
 
 __all__ = [
     "KinematicTree",
+    "PointKinematics",
     "Robot",
     "build_robot",
     "frame_pose",

@@ -35,6 +35,7 @@ class Robot:
     velocity: jax.Array
     acceleration: jax.Array
     jerk: jax.Array
+    ancestors: jax.Array  # (n+1, n) bool: joint j moves frame f (f's own joint included)
     link_frame: jax.Array  # (L,) frame index, 0 = base
     link_offset_r: jax.Array  # (L, 3, 3)
     link_offset_t: jax.Array  # (L, 3)
@@ -82,6 +83,16 @@ def panda_urdf() -> Path:
     raise ValueError("example-robot-data is installed without the Panda URDF")
 
 
+def _ancestors(parent: np.ndarray) -> np.ndarray:
+    """(n+1, n) mask: frame f (0 = base) is moved by joint j."""
+    n = len(parent)
+    out = np.zeros((n + 1, n), bool)
+    for k, p in enumerate(parent):
+        out[k + 1] = out[p + 1]
+        out[k + 1, k] = True
+    return out
+
+
 def _rt(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return m[..., :3, :3], m[..., :3, 3]
 
@@ -97,19 +108,24 @@ def _rpy(rpy) -> np.ndarray:
 def self_collision_pairs(
     tree: KinematicTree,
     sphere_frame: np.ndarray,
+    sphere_link: np.ndarray,
     sphere_pos_fn,
     radius: np.ndarray,
     n_samples: int,
     max_fraction: float,
     reference_qs: np.ndarray,
+    near_distance: float = 0.05,
+    near_fraction: float = 0.5,
     seed: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Sphere pairs that must be checked for self-collision.
 
-    Excluded: spheres on one rigid body or on adjacent bodies, and pairs that
-    overlap at more than `max_fraction` of random configurations within limits
-    or at any reference configuration (such pairs cannot be told apart from
-    the robot's own resting contact).
+    Excluded: spheres on one rigid body or on adjacent bodies, and every pair
+    of two links whose spheres overlap at more than `max_fraction` of random
+    configurations within limits or at any reference configuration (resting
+    contact, not collision), or come closer than `near_distance` at more than
+    `near_fraction` of them (links packed around a joint, whose overlap the
+    spheres' overshoot cannot tell from contact).
     """
     s = len(radius)
     i, j = np.triu_indices(s, 1)
@@ -123,8 +139,15 @@ def self_collision_pairs(
     qs = np.concatenate([rng.uniform(lo, hi, (n_samples, len(lo))), np.atleast_2d(reference_qs)])
     pos = np.asarray(jax.jit(jax.vmap(sphere_pos_fn))(jnp.asarray(qs, jnp.float32)))
     gap = np.linalg.norm(pos[:, i] - pos[:, j], axis=-1) - radius[i] - radius[j]
-    overlap = gap < 0
-    keep = (overlap[:n_samples].mean(0) <= max_fraction) & ~overlap[n_samples:].any(0)
+    # decide per pair of links, on the smallest gap between their spheres (as MoveIt's ACM does)
+    link_pair = sphere_link[i] * (sphere_link.max() + 1) + sphere_link[j]
+    keep = np.ones(len(i), bool)
+    for lp in np.unique(link_pair):
+        sel = link_pair == lp
+        g = gap[:, sel].min(1)
+        overlap, near = g[:n_samples] < 0, g[:n_samples] < near_distance
+        if overlap.mean() > max_fraction or np.any(g[n_samples:] < 0) or near.mean() > near_fraction:
+            keep[sel] = False
     return i[keep].astype(np.int32), j[keep].astype(np.int32)
 
 
@@ -208,6 +231,7 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
         velocity=f32(tree.velocity),
         acceleration=f32(acceleration),
         jerk=f32(jerk),
+        ancestors=jnp.asarray(_ancestors(tree.joint_parent)),
         link_frame=jnp.asarray(tree.link_frame + 1, jnp.int32),
         link_offset_r=f32(link_r),
         link_offset_t=f32(link_t),
@@ -226,10 +250,13 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
     pi, pj = self_collision_pairs(
         tree,
         np.asarray(s_frame),
+        np.asarray(s_link),
         lambda q: kinematics.sphere_centers(robot, q),
         np.asarray(s_radius),
         int(sc.get("samples", 1000)),
-        float(sc.get("max_fraction", 0.01)),
+        float(sc.get("max_fraction", 0.2)),
         reference,
+        float(sc.get("near_distance", 0.05)),
+        float(sc.get("near_fraction", 0.5)),
     )
     return robot.replace(pair_i=jnp.asarray(pi), pair_j=jnp.asarray(pj))

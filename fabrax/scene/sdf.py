@@ -1,105 +1,135 @@
 """Exact signed distances from points to scene primitives, with derivatives.
 
 Distances are positive outside, negative inside (point clouds are unsigned).
-Everything is vectorised over points (N) and primitives (K, in the order
+Everything is vectorised over points (N) and primitive slots (K, in the order
 cuboids, cylinders, spheres, cloud points); masked slots read as `FAR`.
-`distance_kinematics` also returns the gradient n = dd/dp and the curvature
-term pd^T (d^2 d/dp^2) pd that a distance task map needs for its Jdot qd.
+`distance_kinematics` also returns the gradient n = dd/dp, the rate n.pd and
+the curvature term pd^T (d^2 d/dp^2) pd that a distance task map needs for
+its Jdot qd, all in closed form: the fabric evaluates them for every
+(sphere, primitive) pair at every step. Arrays are component-first
+((3, K, N) for vectors) so that the work vectorises over points.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import jaxlie
 
 from fabrax.scene.primitives import Scene
+from fabrax.soa import dot0, sum0
 
 FAR = 1e3  # distance reported for masked (empty) slots
 _EPS2 = 1e-18  # keeps norms differentiable at zero
 
 
-def _norm(v):
-    return jnp.sqrt(jnp.sum(v * v, -1) + _EPS2)
+class PairDistances(NamedTuple):
+    d: jax.Array  # (K, N) signed distance
+    n: jax.Array  # (3, K, N) gradient (unit outward normal)
+    rate: jax.Array  # (K, N) n . pd
+    curv: jax.Array  # (K, N) pd^T H pd
+    mask: jax.Array  # (K,) slot in use
+
+
+def _local(center, rot, x, xd):
+    """Point positions and velocities in each primitive's frame: (3, K, N) each."""
+    dp = x[:, None, :] - center.T[:, :, None]
+    rt = jnp.moveaxis(rot, 0, -1)  # (3, 3, K): rt[c, i, k] = R_k[c, i]
+    pl = jnp.stack([sum(rt[c, i][:, None] * dp[c] for c in range(3)) for i in range(3)])
+    vl = jnp.stack([sum(rt[c, i][:, None] * xd[c][None, :] for c in range(3)) for i in range(3)])
+    return pl, vl, rt
+
+
+def _world(rt, gl):
+    return jnp.stack([sum(rt[c, i][:, None] * gl[i] for i in range(3)) for c in range(3)])
+
+
+def _boxes(center, rot, half, x, xd):
+    """Box |p_l| - h: outside d = |max(q, 0)|, inside d = max_i q_i."""
+    pl, vl, rt = _local(center, rot, x, xd)
+    q = jnp.abs(pl) - half.T[:, :, None]
+    m = jnp.maximum(q, 0.0)
+    dout = jnp.sqrt(dot0(m, m) + _EPS2)
+    qmax = jnp.max(q, 0)
+    outside = qmax > 0.0
+    sign = jnp.where(pl >= 0.0, 1.0, -1.0)
+    top = q >= qmax[None]
+    first = jnp.stack([top[0], top[1] & ~top[0], ~top[0] & ~top[1]])  # the face of the largest q_i (ties: the first)
+    gl = jnp.where(outside[None], sign * m / dout[None], jnp.where(first, sign, 0.0))
+    rate = dot0(gl, vl)
+    active = sum0(jnp.where(q > 0.0, vl * vl, 0.0))
+    curv = jnp.where(outside, (active - rate * rate) / dout, 0.0)  # (diag(active) - g g^T)/|m| on the outside
+    return dout + jnp.minimum(qmax, 0.0), _world(rt, gl), rate, curv
+
+
+def _cylinders(center, rot, radius, half_length, x, xd):
+    """Solid cylinder along local z: d from (rho - r, |z| - h) like a 2-D box."""
+    pl, vl, rt = _local(center, rot, x, xd)
+    rho = jnp.sqrt(pl[0] ** 2 + pl[1] ** 2 + _EPS2)
+    a = rho - radius[:, None]
+    b = jnp.abs(pl[2]) - half_length[:, None]
+    ma, mb = jnp.maximum(a, 0.0), jnp.maximum(b, 0.0)
+    dout = jnp.sqrt(ma * ma + mb * mb + _EPS2)
+    outside = jnp.maximum(a, b) > 0.0
+    ga = jnp.stack([pl[0] / rho, pl[1] / rho, jnp.zeros_like(rho)])  # d rho / d p_l
+    gb = jnp.stack([jnp.zeros_like(rho), jnp.zeros_like(rho), jnp.where(pl[2] >= 0.0, 1.0, -1.0)])
+    gl = jnp.where(outside[None], (ma * ga + mb * gb) / dout[None], jnp.where((a >= b)[None], ga, gb))
+    rate = dot0(gl, vl)
+    ra, rb = dot0(ga, vl), dot0(gb, vl)
+    radial = (vl[0] ** 2 + vl[1] ** 2 - ra * ra) / rho  # v^T (d^2 rho) v
+    out_curv = (ma * radial + jnp.where(a > 0.0, ra * ra, 0.0) + jnp.where(b > 0.0, rb * rb, 0.0) - rate * rate) / dout
+    curv = jnp.where(outside, out_curv, jnp.where(a >= b, radial, 0.0))
+    return dout + jnp.minimum(jnp.maximum(a, b), 0.0), _world(rt, gl), rate, curv
+
+
+def _balls(center, radius, x, xd):
+    """Spheres (and cloud points, radius 0): |p - c| - r."""
+    dp = x[:, None, :] - center.T[:, :, None]
+    dist = jnp.sqrt(dot0(dp, dp) + _EPS2)
+    n = dp / dist[None]
+    rate = dot0(n, xd[:, None, :])
+    curv = (dot0(xd, xd)[None] - rate * rate) / dist
+    return dist - radius[:, None], n, rate, curv
 
 
 def _rot(quat):
     return jaxlie.SO3(quat).as_matrix()
 
 
-def sdf_cuboid(p, center, rot, half):
-    """Signed distance from p (3,) to a box with half extents `half`."""
-    q = jnp.abs(rot.T @ (p - center)) - half
-    return _norm(jnp.maximum(q, 0.0)) + jnp.minimum(jnp.max(q), 0.0)
-
-
-def sdf_cylinder(p, center, rot, radius, half_length):
-    """Signed distance to a solid cylinder along its local z axis."""
-    local = rot.T @ (p - center)
-    q = jnp.stack([_norm(local[:2]) - radius, jnp.abs(local[2]) - half_length])
-    return _norm(jnp.maximum(q, 0.0)) + jnp.minimum(jnp.max(q), 0.0)
-
-
-def sdf_sphere(p, center, radius):
-    return _norm(p - center) - radius
-
-
-def _primitive_fns(scene: Scene):
-    """Per-kind (fn(p, *params), params, mask) with rotations precomputed."""
+def distance_kinematics(scene: Scene, x: jax.Array, xd: jax.Array) -> PairDistances:
+    """Distance task maps x = sd(p) of every (primitive slot, point) pair; x, xd are (3, N)."""
     c, y, s, pc = scene.cuboids, scene.cylinders, scene.spheres, scene.cloud
-    return (
-        (sdf_cuboid, (c.center, _rot(c.quat), c.half_extents), c.mask),
-        (sdf_cylinder, (y.center, _rot(y.quat), y.radius, y.half_length), y.mask),
-        (sdf_sphere, (s.center, s.radius), s.mask),
-        (lambda p, x: _norm(p - x), (pc.points,), pc.mask),
-    )
+    parts = []
+    if c.mask.shape[0]:
+        parts.append((_boxes(c.center, _rot(c.quat), c.half_extents, x, xd), c.mask))
+    if y.mask.shape[0]:
+        parts.append((_cylinders(y.center, _rot(y.quat), y.radius, y.half_length, x, xd), y.mask))
+    if s.mask.shape[0]:
+        parts.append((_balls(s.center, s.radius, x, xd), s.mask))
+    if pc.mask.shape[0]:
+        parts.append((_balls(pc.points, jnp.zeros(pc.mask.shape, x.dtype), x, xd), pc.mask))
+    if not parts:
+        n = x.shape[1]
+        z = jnp.zeros((0, n), x.dtype)
+        return PairDistances(z, jnp.zeros((3, 0, n), x.dtype), z, z, jnp.zeros((0,), bool))
+    mask = jnp.concatenate([m for _, m in parts])
+    d, n, rate, curv = (jnp.concatenate([p[i] for p, _ in parts], axis=1 if i == 1 else 0) for i in range(4))
+    live = mask[:, None]
+    return PairDistances(jnp.where(live, d, FAR), n * live[None], rate * live, curv * live, mask)
 
 
 def primitive_mask(scene: Scene) -> jax.Array:
     """(K,) which primitive slots are in use."""
-    return jnp.concatenate([m for _, _, m in _primitive_fns(scene)])
+    return jnp.concatenate([scene.cuboids.mask, scene.cylinders.mask, scene.spheres.mask, scene.cloud.mask])
 
 
 def signed_distances(scene: Scene, points: jax.Array) -> jax.Array:
-    """(N, K) signed distance from every point to every primitive slot."""
-    cols = []
-    for fn, params, mask in _primitive_fns(scene):
-        if mask.shape[0] == 0:
-            continue
-        d = jax.vmap(lambda p: jax.vmap(lambda *a: fn(p, *a))(*params))(points)
-        cols.append(jnp.where(mask, d, FAR))
-    if not cols:
-        return jnp.full((points.shape[0], 0), FAR, points.dtype)
-    return jnp.concatenate(cols, 1)
+    """(N, K) signed distance from every point (N, 3) to every primitive slot."""
+    return distance_kinematics(scene, points.T, jnp.zeros_like(points.T)).d.T
 
 
 def distance(scene: Scene, points: jax.Array) -> jax.Array:
-    """(N,) signed distance from every point to the nearest obstacle (FAR if none)."""
-    d = signed_distances(scene, points)
-    return jnp.min(d, axis=1, initial=FAR)
-
-
-def distance_kinematics(scene: Scene, points: jax.Array, velocities: jax.Array):
-    """Distance task maps x = sd(p) for every (point, primitive) pair.
-
-    Returns d (N, K), gradient n (N, K, 3), rate n.pd (N, K), curvature
-    pd^T H pd (N, K) and the slot mask (K,). The curvature term is a jvp of
-    the gradient along pd (forward over reverse), never finite differences.
-    """
-    outs = []
-    for fn, params, mask in _primitive_fns(scene):
-        if mask.shape[0] == 0:
-            continue
-
-        def pair(p, pd, *a, fn=fn):
-            value_grad = lambda x: jax.value_and_grad(fn)(x, *a)  # noqa: E731
-            (d, n), (dd, hpd) = jax.jvp(value_grad, (p,), (pd,))
-            return d, n, dd, hpd @ pd
-
-        d, n, dd, curv = jax.vmap(lambda p, pd: jax.vmap(lambda *a: pair(p, pd, *a))(*params))(points, velocities)
-        outs.append((jnp.where(mask, d, FAR), n * mask[:, None], dd * mask, curv * mask, mask))
-    if not outs:
-        n = points.shape[0]
-        z = jnp.zeros((n, 0), points.dtype)
-        return z + FAR, jnp.zeros((n, 0, 3), points.dtype), z, z, jnp.zeros((0,), bool)
-    return tuple(jnp.concatenate(x, 1 if i < 4 else 0) for i, x in enumerate(zip(*outs)))
+    """(N,) signed distance from every point (N, 3) to the nearest obstacle (FAR if none)."""
+    return jnp.min(signed_distances(scene, points), axis=1, initial=FAR)

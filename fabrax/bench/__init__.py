@@ -1,0 +1,5 @@
+"""Benchmark harness: the exact checker, metrics and reports."""
+
+from fabrax.bench.checker import RESOLUTION, CheckResult, check_path, densify, state_clearances
+
+__all__ = ["RESOLUTION", "CheckResult", "check_path", "densify", "state_clearances"]

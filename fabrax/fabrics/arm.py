@@ -1,0 +1,119 @@
+"""The arm fabric assembled from a config (configs/fabric/*.yaml), with goal helpers.
+
+Terms are looked up by role: `goal` (joint attractor aimed at a joint goal or
+a GFCS command), `posture` (joint attractor for redundancy under pose goals),
+`ee` (end-effector pose attractor), plus repulsion, limits and damping terms.
+A joint goal switches on `goal` and off `ee`/`posture`; a pose goal the reverse.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+
+from fabrax.fabrics.fabric import Fabric, Params
+from fabrax.fabrics.terms import TERMS
+from fabrax.robot.kinematics import frame_pose
+from fabrax.robot.robot import Robot
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ArmFabric(Fabric):
+    goal_frame: str = "panda_hand"
+    joint_tolerance: float = 0.05  # rad, |q - q_goal|_2
+    position_tolerance: float = 0.01  # m
+    orientation_tolerance: float = float(np.deg2rad(15.0))  # rad
+    posture: tuple = ()
+
+    def _has(self, name: str) -> bool:
+        return any(t.name == name for t in self.terms)
+
+    def _set(self, params: Params, name: str, **values) -> Params:
+        if not self._has(name):
+            return params
+        p = dict(params[name])
+        for k, v in values.items():
+            p[k] = jnp.broadcast_to(jnp.asarray(v, p[k].dtype), p[k].shape)
+        return {**params, name: p}
+
+    def with_joint_goal(self, params: Params, q_goal: jax.Array) -> Params:
+        """Aim the fabric at a joint configuration (also: a GFCS command)."""
+        if not self._has("goal"):
+            raise ValueError("this fabric has no 'goal' joint attractor term")
+        params = self._set(params, "goal", target=q_goal, weight=1.0)
+        params = self._set(params, "ee", weight=0.0)
+        return self._set(params, "posture", weight=0.0)
+
+    def with_pose_goal(self, params: Params, position: jax.Array, quat_wxyz: jax.Array) -> Params:
+        """Aim the fabric at an end-effector pose of `goal_frame`, holding the posture in the null space."""
+        if not self._has("ee"):
+            raise ValueError("this fabric has no 'ee' end-effector attractor term")
+        params = self._set(params, "ee", target_pos=position, target_quat=quat_wxyz, weight=1.0)
+        params = self._set(params, "goal", weight=0.0)
+        if self.posture:
+            params = self._set(params, "posture", target=jnp.asarray(self.posture), weight=1.0)
+        return params
+
+    def with_goal(self, params: Params, joint_goal, goal_q, goal_pos, goal_quat) -> Params:
+        """Joint goal where `joint_goal` is true, pose goal otherwise; traceable, so it batches over problems."""
+        joint = self.with_joint_goal(params, goal_q)
+        pose = self.with_pose_goal(params, goal_pos, goal_quat) if self._has("ee") else joint
+        return jax.tree.map(lambda a, b: jnp.where(joint_goal, a, b), joint, pose)
+
+    def goal_errors(self, params: Params, q: jax.Array):
+        """(joint error, position error, orientation error) against the current goal."""
+        joint = jnp.linalg.norm(q - params["goal"]["target"]) if self._has("goal") else jnp.inf
+        if not self._has("ee"):
+            return joint, jnp.inf, jnp.inf
+        pose = frame_pose(self.robot, q, self.goal_frame)
+        target = params["ee"]["target_quat"] / jnp.linalg.norm(params["ee"]["target_quat"])
+        pos = jnp.linalg.norm(pose.translation() - params["ee"]["target_pos"])
+        rel = jaxlie.SO3(target).inverse() @ pose.rotation()
+        rot = 2.0 * jnp.arctan2(jnp.linalg.norm(rel.wxyz[1:]), jnp.abs(rel.wxyz[0]))
+        return joint, pos, rot
+
+    def reached(self, params: Params, q: jax.Array, qd: jax.Array | None = None) -> jax.Array:
+        """The goal test for time-to-goal: joint error within tolerance, or pose within position and orientation tolerance."""
+        joint, pos, rot = self.goal_errors(params, q)
+        joint_mode = params["goal"]["weight"] > 0.5 if self._has("goal") else False
+        pose_ok = (pos <= self.position_tolerance) & (rot <= self.orientation_tolerance)
+        return jnp.where(joint_mode, joint <= self.joint_tolerance, pose_ok)
+
+
+def build_arm_fabric(robot: Robot, cfg: dict[str, Any], posture=None) -> ArmFabric:
+    """An `ArmFabric` from a config mapping: {terms: {name: {type: ..., params...}}, goal_tolerance: {...}, goal_frame}."""
+    known = {"terms", "goal_tolerance", "goal_frame"}
+    unknown = set(cfg) - known
+    if unknown:
+        raise ValueError(f"unknown fabric config keys {sorted(unknown)} (known: {sorted(known)})")
+    terms = []
+    for name, spec in (cfg.get("terms") or {}).items():
+        spec = dict(spec)
+        kind = spec.pop("type", None)
+        if kind not in TERMS:
+            raise ValueError(f"fabric term '{name}': unknown type '{kind}' (types: {', '.join(TERMS)})")
+        if kind == "joint_attractor":
+            spec.setdefault("n", robot.dof)
+            if "target" not in spec:
+                spec["target"] = np.asarray(posture if posture is not None else np.zeros(robot.dof), np.float32)
+        terms.append(TERMS[kind](name=name, **spec))
+    tol = dict(cfg.get("goal_tolerance") or {})
+    unknown = set(tol) - {"joint", "position", "orientation_deg"}
+    if unknown:
+        raise ValueError(f"unknown goal_tolerance keys {sorted(unknown)}")
+    fabric = ArmFabric(
+        robot=robot,
+        terms=tuple(terms),
+        goal_frame=cfg.get("goal_frame", "panda_hand"),
+        joint_tolerance=float(tol.get("joint", 0.05)),
+        position_tolerance=float(tol.get("position", 0.01)),
+        orientation_tolerance=float(np.deg2rad(tol.get("orientation_deg", 15.0))),
+        posture=tuple(float(v) for v in posture) if posture is not None else (),
+    )
+    robot.frame_index(fabric.goal_frame)  # fails early on an unknown frame
+    return fabric

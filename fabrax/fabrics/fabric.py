@@ -1,0 +1,106 @@
+"""`Fabric`: a robot plus a tuple of terms, evaluated in one pass (thesis eqs. 2.54-2.60, 3.1-3.3).
+
+    M_e qdd + f_h + alpha M_e qd = -dpsi/dq - B qd
+
+with M_e = sum J^T M_i J, f_h = sum J^T M_i (h2_i + Jdot qd) the combined
+geometry, alpha from energizing it with the summed pulled-back energies (eq.
+2.26), forcing potentials and damping on the right. Parameters are a dict
+{term name: params}; pass them (and the scene) as arrays so that goals,
+gains and obstacles batch under `jax.vmap`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from fabrax.fabrics.spec import Spec, energize_alpha, solve
+from fabrax.fabrics.terms import Contribution, Term, TermInputs
+from fabrax.robot.kinematics import PointKinematics, point_kinematics
+from fabrax.robot.robot import Robot
+from fabrax.scene import Scene
+
+Params = dict[str, Any]
+FORCING_KEYS = ("k_force", "b", "b_goal", "k_speed", "k_drag")  # parameters that inject or drain energy
+
+
+@struct.dataclass
+class FabricEval:
+    spec: Spec  # the forced, damped fabric (M_e, f): qdd = -M_e^-1 f
+    metric: jax.Array  # M_e, the energy metric
+    alpha: jax.Array  # energization coefficient
+    energy: jax.Array  # H_e, conserved when unforced and undamped
+    potential: jax.Array  # sum of forcing potentials
+    terms: Contribution  # summed raw contributions
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Fabric:
+    """A geometric fabric for one robot. Hashable by identity, so it can be a static jit argument."""
+
+    robot: Robot
+    terms: tuple[Term, ...]
+
+    def __post_init__(self):
+        names = [t.name for t in self.terms]
+        if len(set(names)) != len(names):
+            raise ValueError(f"fabric term names must be unique, got {names}")
+
+    def init(self) -> Params:
+        """Default parameters of every term."""
+        return {t.name: t.init() for t in self.terms}
+
+    def term(self, name: str) -> Term:
+        for t in self.terms:
+            if t.name == name:
+                return t
+        raise ValueError(f"fabric has no term '{name}' (terms: {', '.join(t.name for t in self.terms)})")
+
+    def _point_sets(self):
+        """Unique task-point sets requested by the terms, concatenated for one kinematics pass."""
+        sets: dict[str, tuple] = {}
+        for t in self.terms:
+            if t.points is not None:
+                key, frame, local = t.points(self.robot)
+                sets.setdefault(key, (frame, local))
+        return sets
+
+    def evaluate(self, params: Params, scene: Scene, q: jax.Array, qd: jax.Array) -> FabricEval:
+        sets = self._point_sets()
+        kin = {}
+        if sets:
+            frame = jnp.concatenate([f for f, _ in sets.values()])
+            local = jnp.concatenate([loc for _, loc in sets.values()]).astype(q.dtype)
+            allk = point_kinematics(self.robot, q, qd, frame, local)
+            start = 0
+            for key, (f, _) in sets.items():
+                sl = slice(start, start + f.shape[0])
+                kin[key] = PointKinematics(allk.x[:, sl], allk.jac[..., sl], allk.xd[:, sl], allk.jdqd[:, sl])
+                start += f.shape[0]
+        total = Contribution.zeros(q.shape[0], q.dtype)
+        for t in self.terms:
+            pts = kin[t.points(self.robot)[0]] if t.points is not None else None
+            total = total + t.apply(params[t.name], TermInputs(q, qd, pts, scene, self.robot))
+        alpha = energize_alpha(total.M, total.f_geom, total.f_energy, qd)
+        f = total.f_geom + alpha * (total.M @ qd) + total.f_force + total.damping @ qd
+        return FabricEval(Spec(total.M, f), total.M, alpha, total.energy, total.potential, total)
+
+    def accel(self, params: Params, scene: Scene, q: jax.Array, qd: jax.Array) -> jax.Array:
+        """Unconstrained fabric acceleration qdd = -M_e^-1 f."""
+        return solve(self.evaluate(params, scene, q, qd).spec)
+
+
+def unforced(params: Params, fabric: Fabric) -> Params:
+    """The same parameters with every forcing potential and damping switched off (for checks of the geometry)."""
+    out = {}
+    for t in fabric.terms:
+        p = dict(params[t.name])
+        for key in FORCING_KEYS:
+            if key in p:
+                p[key] = jnp.zeros_like(p[key])
+        out[t.name] = p
+    return out

@@ -1,0 +1,352 @@
+"""The fabric term library for arms (thesis §3.3; gfcs_paper §III).
+
+A `Term` is a pair of pure functions in the spirit of an optax transform:
+`init()` gives its default parameters (a pytree of arrays) and
+`apply(params, inputs)` its `Contribution` in configuration space. Each term
+may ask for task points (collision spheres, end-effector keypoints); the
+fabric computes the kinematics of all requested points in one pass.
+
+Every term follows the transform-tree recipe (eqs. 2.55-2.59): a Finsler
+energy L_e and an HD2 geometry h2 in the term's task space are pulled back as
+(J^T M_e J, J^T M_e (h2 + Jdot qd)) together with the pulled-back energy force
+J^T (f_e + M_e Jdot qd); forcing potentials enter as J^T dpsi/dx (eq. 2.60).
+Distance terms reduce all obstacles of a sphere to a 3x3 metric and a
+3-vector before one pullback per sphere.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+from flax import struct
+
+from fabrax.fabrics import energies as E
+from fabrax.fabrics.lagrangian import eom, eom_elementwise, hd2_geometry
+from fabrax.robot.kinematics import PointKinematics
+from fabrax.robot.robot import Robot
+from fabrax.scene import FAR, Scene, distance_kinematics
+from fabrax.soa import dot0, matvec0
+
+
+@struct.dataclass
+class Contribution:
+    """A term's share of the configuration-space fabric."""
+
+    M: jax.Array  # (n, n) pulled-back metric of the term's Finsler energy
+    f_geom: jax.Array  # (n,) J^T M_e (h2 + Jdot qd)           eq. 2.55
+    f_energy: jax.Array  # (n,) J^T (f_e + M_e Jdot qd)        eq. 2.51
+    f_force: jax.Array  # (n,) J^T dpsi/dx of forcing potentials  eq. 2.60
+    damping: jax.Array  # (n, n) B
+    energy: jax.Array  # () Hamiltonian of L_e (eq. 2.11)
+    potential: jax.Array  # () forcing potential psi
+    clearance: jax.Array = FAR  # () smallest distance a repulsion term saw (m)
+
+    @staticmethod
+    def zeros(n: int, dtype=jnp.float32) -> "Contribution":
+        z = jnp.zeros((), dtype)
+        return Contribution(
+            jnp.zeros((n, n), dtype), jnp.zeros(n, dtype), jnp.zeros(n, dtype), jnp.zeros(n, dtype), jnp.zeros((n, n), dtype), z, z, z + FAR
+        )
+
+    def __add__(self, other: "Contribution") -> "Contribution":
+        total = jax.tree.map(jnp.add, self, other)
+        return total.replace(clearance=jnp.minimum(self.clearance, other.clearance))
+
+
+class TermInputs(NamedTuple):
+    q: jax.Array
+    qd: jax.Array
+    points: PointKinematics | None  # kinematics of the points the term asked for
+    scene: Scene
+    robot: Robot
+
+
+class Term(NamedTuple):
+    name: str
+    init: Callable[[], dict[str, Any]]
+    apply: Callable[[dict[str, Any], TermInputs], Contribution]
+    points: Callable[[Robot], tuple[str, jax.Array, jax.Array]] | None = None  # (key, frame (N,), local (N, 3))
+
+
+def _params(defaults: dict[str, Any], overrides: dict[str, Any], name: str) -> Callable[[], dict[str, Any]]:
+    unknown = set(overrides) - set(defaults)
+    if unknown:
+        raise ValueError(f"fabric term '{name}': unknown parameters {sorted(unknown)} (known: {sorted(defaults)})")
+    merged = {**defaults, **overrides}
+    return lambda: {k: jnp.asarray(v, jnp.float32) for k, v in merged.items()}
+
+
+def _spheres(robot: Robot):
+    return "spheres", robot.sphere_frame, robot.sphere_local
+
+
+# ---------------------------------------------------------------------------- joint space
+
+
+def joint_attractor(name: str = "joint_attractor", n: int = 7, **overrides) -> Term:
+    """Joint-space attractor (thesis §3.3.2): geometry qdd = -|qd|^2 dpsi_g/dq, energy m/2 |qd|^2,
+    forcing psi = k_force log cosh(alpha_force |q - q_d|) and extra damping near the target.
+
+    `weight` (0 or 1) switches the attraction (geometry, forcing, damping) while the
+    mass stays, so the fabric's metric keeps full rank. `target` is the goal or
+    command q_d (GFCS) or a posture.
+    """
+    defaults = dict(
+        target=np.zeros(n), weight=1.0, mass=1.0, k_geometry=2.0, alpha_geometry=5.0, k_force=10.0, alpha_force=5.0, b_goal=5.0, alpha_damping=5.0
+    )
+    init = _params(defaults, overrides, name)
+
+    def apply(p, inp: TermInputs) -> Contribution:
+        r = inp.q - p["target"]
+        M = p["mass"] * jnp.eye(r.shape[0], dtype=r.dtype)
+        h2 = hd2_geometry(lambda r_: E.attractor_potential(r_, p["k_geometry"], p["alpha_geometry"]))(r, inp.qd)
+        psi, dpsi = jax.value_and_grad(E.attractor_potential)(r, p["k_force"], p["alpha_force"])
+        b = p["b_goal"] * (1.0 - jnp.tanh(p["alpha_damping"] * E.safe_norm(r)))
+        w = p["weight"]
+        energy = 0.5 * p["mass"] * jnp.sum(inp.qd * inp.qd)
+        return Contribution(M, w * (M @ h2), jnp.zeros_like(r), w * dpsi, w * b * jnp.eye(r.shape[0], dtype=r.dtype), energy, w * psi)
+
+    return Term(name, init, apply)
+
+
+def joint_limits(name: str = "joint_limits", **overrides) -> Term:
+    """Distance-space repulsion from both limits of every joint (thesis §3.3.3, x = q - lower, upper - q)."""
+    defaults = dict(k_metric=0.2, sigma=0.05, reach=0.3, k_barrier=0.5, k_soft=0.5, soft_width=0.03, x0=0.05, floor=1e-3, k_force=0.05)
+    init = _params(defaults, overrides, name)
+
+    def apply(p, inp: TermInputs) -> Contribution:
+        lo, hi = inp.robot.lower, inp.robot.upper
+        finite = jnp.isfinite(lo) & jnp.isfinite(hi)
+        x = jnp.stack([inp.q - jnp.where(finite, lo, -1e3), jnp.where(finite, hi, 1e3) - inp.q])  # (2, n)
+        sign = jnp.array([1.0, -1.0], inp.q.dtype)[:, None]
+        xd = sign * inp.qd
+        m, fe, h, h2, dpsi, psi = _distance_terms(p, x, xd)
+        m, fe, h2 = m * finite, fe * finite, h2 * finite
+        diag = jnp.sum(m, 0)
+        return Contribution(
+            jnp.diag(diag),
+            jnp.sum(sign * m * h2, 0),
+            jnp.sum(sign * fe, 0),
+            jnp.sum(sign * dpsi * finite, 0),
+            jnp.zeros((inp.q.shape[0],) * 2, inp.q.dtype),
+            jnp.sum(h * finite),
+            jnp.sum(psi * finite),
+        )
+
+    return Term(name, init, apply)
+
+
+def damping(name: str = "damping", **overrides) -> Term:
+    """Damping B qd with speed control: B = (b + k_drag |qd|^2) I plus a brake on every joint above eta of its velocity limit.
+
+    The quadratic drag bounds the cruise speed (terminal speed ~ (force / k_drag)^(1/3))
+    without slowing the final approach, where the attractors' own near-goal
+    damping settles the arm; a large constant b would make convergence crawl
+    along directions the task barely moves.
+    """
+    defaults = dict(b=0.5, k_drag=4.0, k_speed=20.0, eta=0.8, sharpness=20.0)
+    init = _params(defaults, overrides, name)
+
+    def apply(p, inp: TermInputs) -> Contribution:
+        ratio = jnp.abs(inp.qd) / inp.robot.velocity
+        brake = p["k_speed"] * jax.nn.softplus(p["sharpness"] * (ratio - p["eta"])) / p["sharpness"]
+        c = Contribution.zeros(inp.q.shape[0], inp.q.dtype)
+        return c.replace(damping=jnp.diag(p["b"] + p["k_drag"] * jnp.sum(inp.qd * inp.qd) + brake))
+
+    return Term(name, init, apply)
+
+
+# ---------------------------------------------------------------------------- task-space points
+
+
+def ee_attractor(name: str = "ee_attractor", frame: str = "panda_hand", offsets=((0, 0, 0.1), (0.1, 0, 0.1), (0, 0.1, 0.1)), **overrides) -> Term:
+    """End-effector pose attractor on three non-collinear points of `frame` (thesis §3.3.1).
+
+    Per point: geometry xdd = -|xd|^2 dpsi_g/dx, energy 1/2 m(x)|xd|^2 with the
+    tanh-shaped mass, forcing psi = k_force log cosh(alpha_force |x - x_d|). Targets are the
+    same points on the goal pose (`target_pos`, `target_quat` wxyz). `point_weights`
+    selects points: (1, 0, 0) attracts position only.
+    """
+    offsets = np.asarray(offsets, np.float32)
+    defaults = dict(
+        target_pos=np.zeros(3),
+        target_quat=np.array([1.0, 0, 0, 0]),
+        weight=1.0,
+        point_weights=np.ones(len(offsets)),
+        m_hi=2.0,
+        m_lo=0.2,
+        alpha_mass=10.0,
+        k_geometry=5.0,
+        alpha_geometry=10.0,
+        k_force=10.0,
+        alpha_force=10.0,
+        b_goal=5.0,
+        alpha_damping=10.0,
+    )
+    init = _params(defaults, overrides, name)
+
+    def points(robot: Robot):
+        i = robot.frame_index(frame)
+        local = jnp.asarray(offsets) @ robot.frame_offset_r[i].T + robot.frame_offset_t[i]
+        return f"{name}:{frame}", jnp.full((len(offsets),), robot.frame_parent[i]), local
+
+    def apply(p, inp: TermInputs) -> Contribution:
+        kin = inp.points
+        target = jaxlie.SO3(p["target_quat"] / jnp.linalg.norm(p["target_quat"])).apply(jnp.asarray(offsets)) + p["target_pos"]
+        x, xd, jac, jdqd = kin.x.T, kin.xd.T, kin.jac.transpose(2, 0, 1), kin.jdqd.T  # few points: (K, 3), (K, 3, n)
+        r = x - target
+        w = p["weight"] * p["point_weights"]
+        energy = lambda r_, rd: E.attractor_energy(r_, rd, p["m_hi"], p["m_lo"], p["alpha_mass"])  # noqa: E731
+        M, fe, H = jax.vmap(lambda r_, rd: eom(energy, r_, rd))(r, xd)
+        h2 = jax.vmap(hd2_geometry(lambda r_: E.attractor_potential(r_, p["k_geometry"], p["alpha_geometry"])))(r, xd)
+        psi, dpsi = jax.vmap(jax.value_and_grad(E.attractor_potential), in_axes=(0, None, None))(r, p["k_force"], p["alpha_force"])
+        b = p["b_goal"] * (1.0 - jnp.tanh(p["alpha_damping"] * E.safe_norm(r)))  # (K,)
+        mj = jnp.einsum("kij,kjn->kin", M, jac)
+        ma = jnp.einsum("kij,kj->ki", M, jdqd)
+        return Contribution(
+            jnp.einsum("kin,kim->nm", jac, mj),
+            jnp.einsum("kin,ki->n", jac, w[:, None] * (jnp.einsum("kij,kj->ki", M, h2) + ma)),
+            jnp.einsum("kin,ki->n", jac, fe + ma),
+            jnp.einsum("kin,ki->n", jac, w[:, None] * dpsi),
+            jnp.einsum("k,kin,kim->nm", w * b, jac, jac),
+            jnp.sum(H),
+            jnp.sum(w * psi),
+        )
+
+    return Term(name, init, apply, points)
+
+
+# ---------------------------------------------------------------------------- distance space
+
+
+def _distance_terms(p, x, xd):
+    """Elementwise over distances x with rates xd: metric m, energy force f_e, energy H,
+    geometry h2 = xd^2 dpsi/dx, forcing dpsi_f/dx and psi_f (thesis §3.3.3)."""
+    energy = lambda x_, xd_: E.gated_barrier_energy(x_, xd_, p["k_metric"], p["sigma"], p["reach"], p["floor"])  # noqa: E731
+    m, fe, h = eom_elementwise(energy, x, xd)
+    geometry = lambda x_: E.barrier_potential(x_, p["k_barrier"], p["k_soft"], p["soft_width"], p["x0"], p["reach"], p["floor"])  # noqa: E731
+    psi, dpsi = geometry(x), jax.grad(lambda x_: jnp.sum(geometry(x_)))(x)
+    return m, fe, h, xd * xd * dpsi, p["k_force"] * dpsi, p["k_force"] * psi
+
+
+def _distance_defaults():
+    return dict(
+        margin=0.0, k_metric=0.5, sigma=0.02, reach=0.25, k_barrier=0.2, k_soft=0.5, soft_width=0.025, x0=0.03, floor=2e-3, k_force=0.1
+    )
+
+
+_SYM3 = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
+
+
+def _reduce(sums: list[jax.Array], mins: list[jax.Array] = (), axis: int = 0) -> tuple[list, list]:
+    """Sums and minima of equally shaped arrays over one axis, in a single variadic reduction.
+
+    One reduce shares the arithmetic that produces its operands (per-pair
+    distances and energies) among all outputs; separate reductions would each
+    fuse, and so recompute, that arithmetic.
+    """
+    ops = tuple(sums) + tuple(mins)
+    k = len(sums)
+    init = tuple(jnp.zeros((), o.dtype) for o in sums) + tuple(jnp.full((), FAR, o.dtype) for o in mins)
+
+    def combine(a, b):
+        return tuple(x + y for x, y in zip(a[:k], b[:k])) + tuple(jnp.minimum(x, y) for x, y in zip(a[k:], b[k:]))
+
+    out = jax.lax.reduce(ops, init, combine, (axis % ops[0].ndim,))
+    return list(out[:k]), list(out[k:])
+
+
+def _unpack_metric(d: int, values: list[jax.Array]) -> jax.Array:
+    upper = [(a, b) for a in range(d) for b in range(a, d)]
+    metric = [[None] * d for _ in range(d)]
+    for (a, b), val in zip(upper, values):
+        metric[a][b] = metric[b][a] = val
+    return jnp.stack([jnp.stack(row) for row in metric])
+
+
+def _metric_products(u: list[jax.Array], weight: jax.Array) -> list[jax.Array]:
+    """weight u_a u_b for the upper triangle (a <= b) of a metric sum_k weight_k u_k u_k^T."""
+    wu = [weight * ua for ua in u]
+    return [wu[a] * u[b] for a in range(len(u)) for b in range(a, len(u))]
+
+
+def _pull_spheres(kin: PointKinematics, m3, g3, e3, f3) -> tuple:
+    """One pullback per sphere of its reduced 3-D spec (eq. 2.6); m3 (3, 3, N), vectors (3, N)."""
+    mj = jnp.stack([sum(m3[c, d][None] * kin.jac[d] for d in range(3)) for c in range(3)])  # (3, n, N): M3 J per sphere
+    ma = matvec0(m3, kin.jdqd)  # (3, N)
+    n = kin.jac.shape[1]
+    upper = [(a, b) for a in range(n) for b in range(a, n)]
+    jt_m_j = [dot0(kin.jac[:, a], mj[:, b]) for a, b in upper]  # (N,) each
+    pulled = [dot0(kin.jac[:, a], v) for v in (g3 + ma, e3 + ma, f3) for a in range(n)]
+    sums, _ = _reduce(jt_m_j + pulled, axis=-1)
+    rest = sums[len(upper) :]
+    return _unpack_metric(n, sums[: len(upper)]), jnp.stack(rest[:n]), jnp.stack(rest[n : 2 * n]), jnp.stack(rest[2 * n :])
+
+
+def obstacle_repulsion(name: str = "obstacles", **overrides) -> Term:
+    """Repulsion of every collision sphere from every scene primitive (thesis §3.3.3).
+
+    Task maps x = sd(p_s) - r_s - margin for each (primitive, sphere) pair;
+    their 1-D specs are reduced per sphere to a 3x3 metric and 3-vectors
+    (sum n m n^T, sum n m (h2 + pd^T H pd), ...), then pulled back once per sphere.
+    """
+    init = _params(_distance_defaults(), overrides, name)
+
+    def apply(p, inp: TermInputs) -> Contribution:
+        kin = inp.points
+        pd = distance_kinematics(inp.scene, kin.x, kin.xd)
+        x = pd.d - inp.robot.sphere_radius[None, :] - p["margin"]  # (K, N)
+        m, fe, h, h2, dpsi, psi = _distance_terms(p, x, pd.rate)
+        n = pd.n
+        wg, we = m * (h2 + pd.curv), fe + m * pd.curv
+        per_pair = _metric_products([n[0], n[1], n[2]], m) + [n[c] * w for w in (wg, we, dpsi) for c in range(3)]
+        sums, (clear,) = _reduce(per_pair + [h, psi], [x + p["margin"]])
+        m3 = _unpack_metric(3, sums[:6])  # (3, 3, N)
+        g3, e3, f3 = jnp.stack(sums[6:9]), jnp.stack(sums[9:12]), jnp.stack(sums[12:15])
+        M, fg, fen, ff = _pull_spheres(kin, m3, g3, e3, f3)
+        return Contribution(M, fg, fen, ff, jnp.zeros_like(M), jnp.sum(sums[15]), jnp.sum(sums[16]), jnp.min(clear))
+
+    return Term(name, init, apply, _spheres)
+
+
+def self_collision(name: str = "self_collision", **overrides) -> Term:
+    """Repulsion between the robot's own sphere pairs (thesis §3.3.3), x = |p_i - p_j| - r_i - r_j.
+
+    Each pair pulls back through both spheres: u = J_i^T n - J_j^T n, M = sum m u u^T.
+    """
+    init = _params(_distance_defaults(), overrides, name)
+
+    def apply(p, inp: TermInputs) -> Contribution:
+        kin, robot = inp.points, inp.robot
+        i, j = robot.pair_i, robot.pair_j
+        rel, reld = kin.x[:, i] - kin.x[:, j], kin.xd[:, i] - kin.xd[:, j]  # (3, P)
+        dist = jnp.sqrt(dot0(rel, rel) + 1e-18)
+        nrm = rel / dist
+        rate = dot0(nrm, reld)
+        curv = (dot0(reld, reld) - rate * rate) / dist + dot0(nrm, kin.jdqd[:, i] - kin.jdqd[:, j])
+        x = dist - robot.sphere_radius[i] - robot.sphere_radius[j] - p["margin"]
+        m, fe, h, h2, dpsi, psi = _distance_terms(p, x, rate)
+        u = [dot0(kin.jac[:, a][:, i] - kin.jac[:, a][:, j], nrm) for a in range(kin.jac.shape[1])]  # J_i^T n - J_j^T n
+        vectors = [m * (h2 + curv), fe + m * curv, dpsi]
+        sums, (clear,) = _reduce(_metric_products(u, m) + [ua * v for v in vectors for ua in u] + [h, psi], [x + p["margin"]])
+        d = len(u)
+        nm = d * (d + 1) // 2
+        M = _unpack_metric(d, sums[:nm])
+        fg, fen, ff = (jnp.stack(sums[nm + k * d : nm + (k + 1) * d]) for k in range(3))
+        return Contribution(M, fg, fen, ff, jnp.zeros_like(M), sums[-2], sums[-1], clear)
+
+    return Term(name, init, apply, _spheres)
+
+
+TERMS = {
+    "joint_attractor": joint_attractor,
+    "joint_limits": joint_limits,
+    "damping": damping,
+    "ee_attractor": ee_attractor,
+    "obstacle_repulsion": obstacle_repulsion,
+    "self_collision": self_collision,
+}

@@ -1,0 +1,103 @@
+"""`Problem`: a start, a goal (joint configuration and/or end-effector pose) and a scene.
+
+Problems are validated at the public boundary: a malformed problem raises a
+`ValueError` naming the field before anything reaches XLA.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from fabrax.robot.kinematics import sphere_centers
+from fabrax.robot.robot import Robot
+from fabrax.scene import Scene, from_dict, stack
+from fabrax.scene.sdf import distance
+
+
+@dataclasses.dataclass
+class Problem:
+    start_q: np.ndarray
+    scene: Scene
+    goal_q: np.ndarray | None = None
+    goal_pose: tuple[np.ndarray, np.ndarray] | None = None  # (position xyz, quaternion wxyz) of the goal frame
+    name: str = "problem"
+    kind: str = "custom"  # problem class, e.g. "bookshelf_small"
+    start_qd: np.ndarray | None = None
+
+    @property
+    def goal_type(self) -> str:
+        return "joint" if self.goal_q is not None else "pose"
+
+
+def _vector(value, name: str, n: int) -> np.ndarray:
+    try:
+        v = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{name}: not numeric ({value!r})") from e
+    if v.shape != (n,):
+        raise ValueError(f"{name}: expected {n} values, got shape {v.shape}")
+    if not np.all(np.isfinite(v)):
+        raise ValueError(f"{name}: NaN or infinite value {v.tolist()}")
+    return v
+
+
+def make_problem(robot: Robot, start_q, scene: Scene | dict, goal_q=None, goal_pose=None, name="problem", kind="custom", start_qd=None) -> Problem:
+    """Build and validate a problem (see `validate`)."""
+    scene = from_dict(scene) if isinstance(scene, dict) else scene
+    p = Problem(
+        start_q=_vector(start_q, f"{name}.start_q", robot.dof),
+        scene=scene,
+        goal_q=None if goal_q is None else _vector(goal_q, f"{name}.goal_q", robot.dof),
+        goal_pose=None
+        if goal_pose is None
+        else (_vector(goal_pose[0], f"{name}.goal_pose.position", 3), _vector(goal_pose[1], f"{name}.goal_pose.quat_wxyz", 4)),
+        name=name,
+        kind=kind,
+        start_qd=None if start_qd is None else _vector(start_qd, f"{name}.start_qd", robot.dof),
+    )
+    validate(robot, p)
+    return p
+
+
+def validate(robot: Robot, p: Problem, collision_margin: float = 0.0) -> None:
+    """Raise ValueError naming the field if the problem is malformed, outside limits or starts in collision."""
+    lo, hi = np.asarray(robot.lower), np.asarray(robot.upper)
+    if p.goal_q is None and p.goal_pose is None:
+        raise ValueError(f"{p.name}: needs goal_q or goal_pose")
+    for field, q in (("start_q", p.start_q), ("goal_q", p.goal_q)):
+        if q is None:
+            continue
+        bad = np.nonzero((q < lo - 1e-6) | (q > hi + 1e-6))[0]
+        if len(bad):
+            j = int(bad[0])
+            raise ValueError(f"{p.name}.{field}[{j}] = {q[j]:.4f} is outside the joint limits [{lo[j]:.4f}, {hi[j]:.4f}] of {robot.joint_names[j]}")
+    if p.goal_pose is not None and not math.isclose(float(np.linalg.norm(p.goal_pose[1])), 1.0, abs_tol=1e-3):
+        raise ValueError(f"{p.name}.goal_pose.quat_wxyz must be a unit quaternion, got {p.goal_pose[1].tolist()}")
+    clearance = float(
+        jnp.min(distance(p.scene, sphere_centers(robot, jnp.asarray(p.start_q, jnp.float32))) - robot.sphere_radius, initial=np.inf)
+    )
+    if clearance < -collision_margin:
+        raise ValueError(f"{p.name}.start_q is in collision with the scene (penetration {-clearance * 1000:.1f} mm)")
+
+
+def batch(problems: list[Problem]) -> dict[str, Any]:
+    """Stack problems into arrays for `jax.vmap`: start_q (B, n), goal_q (B, n) (zeros where absent),
+    goal_pos (B, 3), goal_quat (B, 4), joint_goal (B,) bool, scene (B, ...) padded to one capacity."""
+    n = len(problems[0].start_q)
+    f32 = lambda a: jnp.asarray(np.asarray(a, np.float64), jnp.float32)  # noqa: E731
+    return {
+        "start_q": f32([p.start_q for p in problems]),
+        "start_qd": f32([p.start_qd if p.start_qd is not None else np.zeros(n) for p in problems]),
+        "goal_q": f32([p.goal_q if p.goal_q is not None else np.zeros(n) for p in problems]),
+        "goal_pos": f32([p.goal_pose[0] if p.goal_pose is not None else np.zeros(3) for p in problems]),
+        "goal_quat": f32([p.goal_pose[1] if p.goal_pose is not None else [1, 0, 0, 0] for p in problems]),
+        "joint_goal": jnp.asarray([p.goal_q is not None for p in problems]),
+        "scene": stack([p.scene for p in problems]),
+    }
+

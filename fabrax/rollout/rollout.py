@@ -1,0 +1,183 @@
+"""Rollouts: fabric integration in `lax.scan`, time to goal and command sequences.
+
+`rollout_sequence` integrates a fabric through m command segments (gfcs_paper
+eqs. 1-7): segment i uses the parameters `params_seq[i]` (e.g. a joint
+attractor aimed at command q_g^i) from the end state of segment i-1, until its
+goal test holds or `steps` steps pass; its duration is t*_i (eq. 2). The last
+segment is the final goal. Steps run in chunks of a `lax.scan` inside a
+`lax.while_loop` that stops once the arm is done; under `jax.vmap` the loop
+runs until every arm is done (early exit for the batch) and finished arms
+hold still. All of it is one pure function: jit it, vmap it over arms, goals
+and scenes.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from fabrax.fabrics.fabric import Fabric, Params
+from fabrax.fabrics.limits import acceleration_box, solve_in_box
+from fabrax.fabrics.spec import solve
+from fabrax.rollout.trajectory import Trajectory
+from fabrax.scene import FAR, Scene
+
+Reached = Callable[[Params, jax.Array, jax.Array], jax.Array]
+INTEGRATORS = ("euler", "second_order", "rk4")
+
+
+def accel(fabric: Fabric, params: Params, scene: Scene, q, qd, dt: float, limits: bool = True):
+    """Fabric acceleration with the limits of thesis §3.3.4 applied; also returns the clearance."""
+    ev = fabric.evaluate(params, scene, q, qd)
+    if not limits:
+        return solve(ev.spec), ev.terms.clearance
+    lo, hi = acceleration_box(fabric.robot, q, qd, dt)
+    return solve_in_box(ev.spec, lo, hi)[0], ev.terms.clearance
+
+
+def integrate(fabric: Fabric, params: Params, scene: Scene, q, qd, dt: float, integrator: str = "second_order", limits: bool = True):
+    """One step. euler: q += dt qd (gfcs_paper); second_order: q += dt qd + dt^2/2 qdd (thesis eq. 3.13-3.14); rk4 for accuracy checks."""
+    qdd, clearance = accel(fabric, params, scene, q, qd, dt, limits)
+    if integrator == "euler":
+        return q + dt * qd, qd + dt * qdd, qdd, clearance
+    if integrator == "second_order":
+        return q + dt * qd + 0.5 * dt * dt * qdd, qd + dt * qdd, qdd, clearance
+    if integrator == "rk4":
+        f = lambda q_, qd_: accel(fabric, params, scene, q_, qd_, dt, limits)[0]  # noqa: E731
+        k1q, k1v = qd, qdd
+        k2q, k2v = qd + 0.5 * dt * k1v, f(q + 0.5 * dt * k1q, qd + 0.5 * dt * k1v)
+        k3q, k3v = qd + 0.5 * dt * k2v, f(q + 0.5 * dt * k2q, qd + 0.5 * dt * k2v)
+        k4q, k4v = qd + dt * k3v, f(q + dt * k3q, qd + dt * k3v)
+        return (
+            q + dt / 6 * (k1q + 2 * k2q + 2 * k3q + k4q),
+            qd + dt / 6 * (k1v + 2 * k2v + 2 * k3v + k4v),
+            qdd,
+            clearance,
+        )
+    raise ValueError(f"integrator must be one of {INTEGRATORS}, got '{integrator}'")
+
+
+@struct.dataclass
+class _Carry:
+    t: jax.Array  # steps taken
+    seg: jax.Array  # current segment
+    seg_t: jax.Array  # steps taken in the current segment
+    q: jax.Array
+    qd: jax.Array
+    done: jax.Array
+    reached: jax.Array
+    t_goal: jax.Array
+    seg_times: jax.Array
+    clearance: jax.Array
+
+
+def rollout_sequence(
+    fabric: Fabric,
+    params_seq: Params,
+    scene: Scene,
+    q0: jax.Array,
+    qd0: jax.Array,
+    reached: Reached,
+    *,
+    dt: float = 0.01,
+    steps: int = 700,
+    integrator: str = "second_order",
+    limits: bool = True,
+    chunk: int = 25,
+    stop_at_goal: bool = True,
+) -> Trajectory:
+    """Integrate through every segment of `params_seq` (leading axis m); see the module docstring.
+
+    steps: budget per segment (t_max = steps dt). The returned trajectory has
+    m * steps + 1 rows; rows past `length` repeat the final state.
+    With stop_at_goal=False the last segment runs its whole budget.
+    """
+    if integrator not in INTEGRATORS:
+        raise ValueError(f"integrator must be one of {INTEGRATORS}, got '{integrator}'")
+    m = jax.tree.leaves(params_seq)[0].shape[0]
+    total = m * steps
+    n_chunks = -(-total // chunk)
+    dtype = q0.dtype
+
+    def step(c: _Carry, _):
+        p = jax.tree.map(lambda a: a[c.seg], params_seq)
+        q, qd, qdd, clearance = integrate(fabric, p, scene, c.q, c.qd, dt, integrator, limits)
+        seg_t = c.seg_t + 1
+        hit = reached(p, q, qd)
+        last = c.seg == m - 1
+        seg_over = hit | (seg_t >= steps)
+        final_hit = last & hit
+        new = _Carry(
+            t=c.t + 1,
+            seg=jnp.where(seg_over & ~last, c.seg + 1, c.seg),
+            seg_t=jnp.where(seg_over & ~last, 0, seg_t),
+            q=q,
+            qd=qd,
+            done=last & ((stop_at_goal & hit) | (seg_t >= steps)),
+            reached=c.reached | final_hit,
+            t_goal=jnp.where(final_hit & ~c.reached, (c.t + 1) * dt, c.t_goal),
+            seg_times=jnp.where((jnp.arange(m) == c.seg) & seg_over, seg_t * dt, c.seg_times),
+            clearance=jnp.minimum(c.clearance, clearance),
+        )
+        new = jax.tree.map(lambda a, b: jnp.where(c.done, a, b), c, new)  # finished arms hold still
+        zero = jnp.zeros_like(qdd)
+        return new, (new.q, jnp.where(c.done, zero, new.qd), jnp.where(c.done, zero, qdd))
+
+    def body(state):
+        i, c, buf = state
+        c, (qs, qds, qdds) = jax.lax.scan(step, c, None, length=chunk)
+        buf = tuple(jax.lax.dynamic_update_slice_in_dim(b, x, 1 + i * chunk, axis=0) for b, x in zip(buf, (qs, qds, qdds)))
+        return i + 1, c, buf
+
+    def cond(state):
+        i, c, _ = state
+        return (i < n_chunks) & ~c.done
+
+    rows = 1 + n_chunks * chunk
+    buf = (
+        jnp.zeros((rows, q0.shape[0]), dtype).at[0].set(q0),
+        jnp.zeros((rows, q0.shape[0]), dtype).at[0].set(qd0),
+        jnp.zeros((rows, q0.shape[0]), dtype),
+    )
+    c0 = _Carry(
+        t=jnp.zeros((), jnp.int32),
+        seg=jnp.zeros((), jnp.int32),
+        seg_t=jnp.zeros((), jnp.int32),
+        q=q0,
+        qd=qd0,
+        done=jnp.zeros((), bool),
+        reached=jnp.zeros((), bool),
+        t_goal=jnp.asarray(total * dt, dtype),
+        seg_times=jnp.full((m,), steps * dt, dtype),
+        clearance=jnp.asarray(FAR, dtype),
+    )
+    _, c, (qs, qds, qdds) = jax.lax.while_loop(cond, body, (jnp.zeros((), jnp.int32), c0, buf))
+    length = c.t + 1
+    valid = (jnp.arange(rows) < length)[:, None]
+    qs = jnp.where(valid, qs, c.q)[: total + 1]
+    qds = jnp.where(valid, qds, 0.0)[: total + 1]
+    qdds = jnp.where(valid, qdds, 0.0)[: total + 1]
+    return Trajectory(qs, qds, qdds, jnp.asarray(dt, dtype), length, c.reached, c.t_goal, c.seg_times, c.clearance)
+
+
+def rollout(fabric: Fabric, params: Params, scene: Scene, q0, qd0, reached: Reached, **kwargs) -> Trajectory:
+    """Integrate toward a single goal: `rollout_sequence` with one segment."""
+    return rollout_sequence(fabric, jax.tree.map(lambda a: a[None], params), scene, q0, qd0, reached, **kwargs)
+
+
+def reach(fabric, params: Params, problems: dict, **kwargs) -> Trajectory:
+    """Roll the fabric out toward each problem's goal, batched with `jax.vmap`.
+
+    `problems` is `fabrax.problems.batch(...)`; `fabric` an `ArmFabric`. Returns
+    a batched `Trajectory`.
+    """
+
+    def one(start_q, start_qd, joint_goal, goal_q, goal_pos, goal_quat, scene):
+        p = fabric.with_goal(params, joint_goal, goal_q, goal_pos, goal_quat)
+        return rollout(fabric, p, scene, start_q, start_qd, fabric.reached, **kwargs)
+
+    b = problems
+    return jax.vmap(one)(b["start_q"], b["start_qd"], b["joint_goal"], b["goal_q"], b["goal_pos"], b["goal_quat"], b["scene"])

@@ -1,0 +1,35 @@
+"""Component-first (structure-of-arrays) vector arithmetic: vectors are arrays (3, ...).
+
+Hot paths keep the small axis (xyz, joints) first and unroll it in Python, so
+XLA sees only elementwise arithmetic over the large axes (points, pairs) and
+fuses it into a few vectorised loops; a `sum` over a size-3 axis would be a
+separate reduction kernel each time.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+
+def sum0(a: jax.Array) -> jax.Array:
+    """Sum over the leading (small) axis, unrolled."""
+    out = a[0]
+    for i in range(1, a.shape[0]):
+        out = out + a[i]
+    return out
+
+
+def dot0(a: jax.Array, b: jax.Array) -> jax.Array:
+    """Dot product over the leading axis."""
+    return sum0(a * b)
+
+
+def cross0(a: jax.Array, b: jax.Array) -> jax.Array:
+    """Cross product over the leading axis of size 3."""
+    return jnp.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+def matvec0(m: jax.Array, v: jax.Array) -> jax.Array:
+    """(m v)_i = sum_j m[i, j] v[j] for m (d, e, ...) and v (e, ...)."""
+    return jnp.stack([dot0(m[i], v) for i in range(m.shape[0])])

@@ -1,0 +1,186 @@
+"""The fabric maths, tested as maths (thesis §2.1, §3.3)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from fabrax import config
+from fabrax import scene as sc
+from fabrax.fabrics import energize, eom, pullback, unforced
+from fabrax.fabrics import energies as E
+from fabrax.fabrics.lagrangian import eom_elementwise, hd2_geometry
+from fabrax.fabrics.spec import Spec
+from fabrax.robot import point_kinematics
+from fabrax.rollout import integrate
+
+READY = [0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785]
+GOAL = [1.0, 0.2, 0.3, -1.5, 0.2, 1.8, 0.5]
+BAR = {"obstacles": [{"type": "cuboid", "center": [0.45, 0.0, 0.45], "size": [0.1, 0.4, 0.1]}]}
+V0 = [0.6, 0.4, -0.3, 0.5, 0.2, -0.4, 0.3]
+
+
+@pytest.fixture(scope="module")
+def fabric(panda):
+    return config.load_fabric(panda)
+
+
+def f64(tree):
+    return jax.tree.map(lambda a: jnp.asarray(a, jnp.float64) if jnp.issubdtype(jnp.asarray(a).dtype, jnp.floating) else a, tree)
+
+
+def geometry_params(fab, params, sigma=None):
+    """Both attractors' geometry on, every forcing and damping off."""
+    p = fab.with_pose_goal(params, jnp.asarray([0.5, 0.2, 0.4]), jnp.asarray([0.0, 1.0, 0.0, 0.0]))
+    p = fab._set(p, "goal", target=jnp.asarray(GOAL), weight=1.0)
+    p = unforced(p, fab)
+    if sigma is not None:
+        for t in ("obstacles", "self_collision", "joint_limits"):
+            p = fab._set(p, t, sigma=sigma)
+    return f64(p)
+
+
+def integrate_scan(fab, p, scene, q0, qd0, dt, steps, integrator="rk4"):
+    def body(c, _):
+        q, qd = c
+        qn, qdn, _, clearance = integrate(fab, p, scene, q, qd, dt, integrator, limits=False)
+        return (qn, qdn), (qn, qdn, fab.evaluate(p, scene, qn, qdn).energy, clearance)
+
+    return jax.jit(lambda q, qd: jax.lax.scan(body, (q, qd), None, length=steps)[1])(q0, qd0)
+
+
+def test_energy_conservation_unforced(fabric):
+    """An unforced, undamped energized fabric conserves its energy H_e (eq. 2.29), here next to an obstacle."""
+    fab, params = fabric
+    with jax.enable_x64(True):
+        p = geometry_params(fab, params)
+        scene = f64(sc.from_dict(BAR))
+        q0, qd0 = jnp.asarray(READY, jnp.float64), jnp.asarray(V0, jnp.float64)
+        _, _, energy, clearance = integrate_scan(fab, p, scene, q0, qd0, 1e-3, 1000)
+        e0 = fab.evaluate(p, scene, q0, qd0).energy
+        assert float(clearance.min()) < 0.1, "the repulsion terms should be active in this check"
+        assert float(jnp.max(jnp.abs(energy - e0)) / e0) <= 1e-3
+
+
+def test_path_consistency(fabric):
+    """Same start, same velocity direction, two speeds: the same path (geometry generator, §2.1.6)."""
+    fab, params = fabric
+    with jax.enable_x64(True):
+        p = geometry_params(fab, params, sigma=1e-6)  # the velocity gate is HD2 outside |xd| < sigma
+        scene = f64(sc.from_dict(BAR))
+        q0, v = jnp.asarray(READY, jnp.float64), jnp.asarray(V0, jnp.float64)
+        slow = np.asarray(integrate_scan(fab, p, scene, q0, v, 1e-3, 1000)[0])
+        fast = np.asarray(integrate_scan(fab, p, scene, q0, 2.0 * v, 5e-4, 1000)[0])
+
+    def resample(path):
+        path = np.concatenate([np.asarray(READY)[None], path])
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+        grid = np.linspace(0.0, 1.0, 200)
+        return np.stack([np.interp(grid, s, path[:, j]) for j in range(path.shape[1])], 1), s[-1]
+
+    a, la = resample(slow)
+    b, lb = resample(fast)
+    assert abs(la - lb) < 1e-4 and la > 0.5
+    assert np.abs(a - b).max() < 1e-5
+
+
+def test_pullback_commutes_with_energization(panda):
+    """pull[energize_Le (I, h2)] = energize_{pull Le}[pull (M_e, M_e h2)]  (eq. 2.52)."""
+    with jax.enable_x64(True):
+        rng = np.random.default_rng(0)
+        q, qd = jnp.asarray(rng.uniform(panda.lower, panda.upper)), jnp.asarray(rng.normal(size=7))
+        frame, local = jnp.asarray([7]), jnp.asarray([[0.0, 0.05, 0.2]])
+        kin = point_kinematics(panda, q, qd, frame, local)
+        x, xd, jac, jdqd = kin.x[:, 0], kin.xd[:, 0], kin.jac[:, :, 0], kin.jdqd[:, 0]
+        target = jnp.asarray([0.3, 0.2, 0.5])
+        energy = lambda x_, xd_: E.attractor_energy(x_ - target, xd_, 3.0, 0.5, 4.0)  # noqa: E731
+        h2 = hd2_geometry(lambda x_: E.attractor_potential(x_ - target, 2.0, 5.0))(x, xd)
+        M, fe, _ = eom(energy, x, xd)
+        # energize in X, then pull back
+        lhs = pullback(energize(M, M @ h2, fe, xd), jac, jdqd)
+        # pull back geometry and energy, then energize in Q
+        geom = pullback(Spec(M, M @ h2), jac, jdqd)
+        fe_q = pullback(Spec(M, fe), jac, jdqd).f
+        rhs = energize(geom.M, geom.f, fe_q, qd)
+        assert jnp.allclose(lhs.M, rhs.M, atol=1e-10)
+        assert jnp.allclose(lhs.f, rhs.f, atol=1e-9)
+        # and the pulled-back energy's EOM is the pullback of the EOM (eq. 2.51)
+        pulled = lambda q_, qd_: energy(*(lambda k: (k.x[:, 0], k.xd[:, 0]))(point_kinematics(panda, q_, qd_, frame, local)))  # noqa: E731
+        Mq, fq, _ = eom(pulled, q, qd)
+        assert jnp.allclose(Mq, lhs.M, atol=1e-9)
+        assert jnp.allclose(fq, fe_q, atol=1e-8)
+
+
+def test_metrics_symmetric_positive_definite(fabric):
+    fab, params = fabric
+    scene = sc.from_dict(BAR)
+    rng = np.random.default_rng(1)
+    lo, hi = np.asarray(fab.robot.lower), np.asarray(fab.robot.upper)
+    qs = jnp.asarray(rng.uniform(lo, hi, (64, 7)), jnp.float32)
+    qds = jnp.asarray(rng.normal(size=(64, 7)), jnp.float32)
+    metric = jax.jit(jax.vmap(lambda q, qd: fab.evaluate(params, scene, q, qd).metric))(qs, qds)
+    assert jnp.allclose(metric, jnp.swapaxes(metric, 1, 2), atol=1e-5)
+    assert float(jnp.linalg.eigvalsh(metric).min()) > 0.0
+    # per-distance metrics of the gated barrier energy are >= 0 for every rate
+    x = jnp.linspace(-0.01, 0.4, 50)[:, None] + jnp.zeros((1, 50))
+    xd = jnp.zeros((50, 1)) + jnp.linspace(-3, 3, 50)[None]
+    m, _, _ = eom_elementwise(lambda a, b: E.gated_barrier_energy(a, b, 0.5, 0.02, 0.25, 2e-3), x, xd)
+    assert float(m.min()) >= 0.0
+
+
+@pytest.mark.parametrize(
+    "energy",
+    [
+        lambda x, xd: E.attractor_energy(x - jnp.asarray([0.1, -0.2, 0.3]), xd, 2.0, 0.2, 10.0),
+        lambda x, xd: jnp.sum(E.gated_barrier_energy(x, xd, 0.5, 0.02, 0.25, 2e-3)),
+    ],
+)
+def test_autodiff_forces_against_finite_differences(energy):
+    """f = (d/dx dL/dxd) xd - dL/dx and M = d2L/dxd2 against central differences."""
+    with jax.enable_x64(True):
+        rng = np.random.default_rng(2)
+        x, xd = jnp.asarray(rng.uniform(0.05, 0.2, 3)), jnp.asarray(rng.normal(size=3) * 0.3)
+        M, f, H = eom(energy, x, xd)
+        h = 1e-6
+        grad_xd = jax.grad(energy, 1)
+        fd_M = jnp.stack([(grad_xd(x, xd + h * e) - grad_xd(x, xd - h * e)) / (2 * h) for e in jnp.eye(3)], 1)
+        fd_mixed = jnp.stack([(grad_xd(x + h * e, xd) - grad_xd(x - h * e, xd)) / (2 * h) for e in jnp.eye(3)], 1)
+        fd_dx = jnp.asarray([(energy(x + h * e, xd) - energy(x - h * e, xd)) / (2 * h) for e in jnp.eye(3)])
+        assert jnp.allclose(M, fd_M, atol=1e-6)
+        assert jnp.allclose(f, fd_mixed @ xd - fd_dx, atol=1e-6)
+        assert jnp.allclose(H, grad_xd(x, xd) @ xd - energy(x, xd))
+        # the elementwise form used for distance terms gives the same numbers
+        if energy.__code__.co_names.count("gated_barrier_energy"):
+            me, fe_, he = eom_elementwise(lambda a, b: E.gated_barrier_energy(a, b, 0.5, 0.02, 0.25, 2e-3), x, xd)
+            assert jnp.allclose(jnp.diag(M), me) and jnp.allclose(f, fe_) and jnp.allclose(H, he.sum())
+
+
+def test_no_nan_at_singular_states(fabric):
+    """Zero velocity, exactly at the goal, at the joint limits, 1 mm from an obstacle, inside it."""
+    fab, params = fabric
+    robot = fab.robot
+    goal = jnp.asarray(GOAL)
+    p = fab.with_joint_goal(params, goal)
+    pose = fab.with_pose_goal(params, jnp.asarray([0.4, 0.1, 0.5]), jnp.asarray([0.0, 1.0, 0.0, 0.0]))
+    # an obstacle whose face is 1 mm from the surface of one collision sphere at READY
+    x = point_kinematics(robot, jnp.asarray(READY), jnp.zeros(7), robot.sphere_frame, robot.sphere_local).x
+    c, r = x[:, 30], robot.sphere_radius[30]
+    near = sc.from_dict({"obstacles": [{"type": "cuboid", "center": [float(c[0]) + float(r) + 0.001 + 0.05, float(c[1]), float(c[2])], "size": [0.1, 0.1, 0.1]}]})
+    inside = sc.from_dict({"obstacles": [{"type": "sphere", "center": [float(v) for v in c], "radius": 0.05}]})
+    free = sc.empty(cuboids=1)
+    cases = [
+        (p, free, READY, np.zeros(7)),
+        (p, free, GOAL, np.zeros(7)),
+        (pose, free, READY, np.zeros(7)),
+        (p, free, np.asarray(robot.lower), np.zeros(7)),
+        (p, free, np.asarray(robot.upper), -0.5 * np.ones(7)),
+        (p, near, READY, np.zeros(7)),
+        (p, near, READY, np.asarray(V0)),
+        (p, inside, READY, np.asarray(V0)),
+    ]
+    acc = jax.jit(lambda pp, s, q, qd: integrate(fab, pp, s, q, qd, 0.01)[2])
+    for pp, s, q, qd in cases:
+        out = acc(pp, s, jnp.asarray(q, jnp.float32), jnp.asarray(qd, jnp.float32))
+        assert bool(jnp.all(jnp.isfinite(out))), (q, qd)
+    ev = jax.jit(fab.evaluate)(p, free, goal, jnp.zeros(7))
+    assert bool(jnp.all(jnp.isfinite(ev.spec.f))) and float(jnp.abs(ev.alpha)) < 1e-3

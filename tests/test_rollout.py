@@ -1,0 +1,122 @@
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from fabrax import config
+from fabrax import scene as sc
+from fabrax.bench import check_path
+from fabrax.fabrics import max_acceleration
+from fabrax.robot import frame_pose
+from fabrax.rollout import reach, rollout, rollout_sequence
+from fabrax.problems import batch, make_problem
+
+READY = jnp.asarray([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
+GOAL = jnp.asarray([1.2, 0.3, 0.2, -1.6, 0.1, 1.9, 0.8])
+BOX = {"obstacles": [{"type": "cuboid", "center": [0.45, 0.3, 0.45], "size": [0.12, 0.12, 0.12]}]}
+
+
+@pytest.fixture(scope="module")
+def fabric(panda):
+    return config.load_fabric(panda)
+
+
+@pytest.fixture(scope="module")
+def run(fabric):
+    fab, _ = fabric
+    return jax.jit(lambda p, s, q0, qd0: rollout(fab, p, s, q0, qd0, fab.reached, dt=0.01, steps=700))
+
+
+def test_converges_to_free_space_joint_goal(fabric, run):
+    fab, params = fabric
+    tr = run(fab.with_joint_goal(params, GOAL), sc.empty(cuboids=1), READY, jnp.zeros(7))
+    assert bool(tr.reached) and float(tr.t_goal) < 4.0
+    full = jax.jit(lambda p: rollout(fab, p, sc.empty(cuboids=1), READY, jnp.zeros(7), fab.reached, steps=700, stop_at_goal=False))
+    settled = full(fab.with_joint_goal(params, GOAL))
+    assert float(jnp.linalg.norm(settled.q[-1] - GOAL)) < 0.01  # converges, not only passes by
+    assert float(jnp.abs(settled.qd[-1]).max()) < 0.01
+
+
+def test_converges_to_free_space_pose_goal(fabric, run):
+    fab, params = fabric
+    target = frame_pose(fab.robot, GOAL, fab.goal_frame)
+    p = fab.with_pose_goal(params, target.translation(), target.rotation().wxyz)
+    tr = run(p, sc.empty(cuboids=1), READY, jnp.zeros(7))
+    assert bool(tr.reached)
+    _, pos, rot = fab.goal_errors(p, tr.final_q())
+    assert float(pos) <= 0.01 and float(rot) <= np.deg2rad(15)
+
+
+def test_avoids_obstacle_between_start_and_goal(fabric, run, panda):
+    """The straight joint-space path hits the box; the fabric goes around it and still arrives."""
+    fab, params = fabric
+    scene = sc.from_dict(BOX)
+    assert check_path(panda, scene, np.linspace(np.asarray(READY), np.asarray(GOAL), 50)).collision
+    tr = run(fab.with_joint_goal(params, GOAL), scene, READY, jnp.zeros(7))
+    n = int(tr.length)
+    assert bool(tr.reached)
+    result = check_path(panda, scene, np.asarray(tr.q[:n]))
+    assert not result.collision and result.limits_ok
+
+
+def test_limits_never_exceeded(fabric, panda):
+    """Goals beyond the joint limits and fast starts toward them: position, velocity,
+    acceleration and jerk limits hold at every step (thesis §3.3.4)."""
+    fab, params = fabric
+    rng = np.random.default_rng(0)
+    lo, hi = np.asarray(panda.lower), np.asarray(panda.upper)
+    starts = rng.uniform(lo + 0.05, hi - 0.05, (32, 7))
+    towards = np.where(rng.random((32, 7)) < 0.5, lo - 1.0, hi + 1.0)  # attractor targets outside the limits
+    amax = np.asarray(max_acceleration(panda, 0.01))
+    room = np.where(towards > starts, hi - starts, starts - lo)
+    speed = np.minimum(np.minimum(2.0, np.asarray(panda.velocity)), 0.95 * np.sqrt(2.0 * amax * room))  # can still brake
+    qd0 = np.sign(towards - starts) * speed
+
+    def one(q0, qd0, target):
+        p = fab.with_joint_goal(params, target)
+        return rollout(fab, p, sc.empty(cuboids=1), q0, qd0, fab.reached, dt=0.01, steps=300, stop_at_goal=False)
+
+    tr = jax.jit(jax.vmap(one))(*(jnp.asarray(a, jnp.float32) for a in (starts, qd0, towards)))
+    q, qd, qdd = np.asarray(tr.q), np.asarray(tr.qd), np.asarray(tr.qdd)
+    tol = 1e-5
+    assert np.all(q >= lo - tol) and np.all(q <= hi + tol)
+    assert np.all(np.abs(qd) <= np.asarray(panda.velocity) + tol)
+    assert np.all(np.abs(qdd) <= amax + tol)
+    assert np.all(amax <= np.asarray(panda.acceleration))
+    jerk = np.abs(np.diff(qdd[:, :-1], axis=1)) / 0.01  # the last row pads the final state
+    assert np.all(jerk <= np.asarray(panda.jerk) + 1e-2)
+    assert np.abs(qdd).max() > 0.5 * amax.min()  # the limits were actually reached, not avoided
+
+
+def test_command_sequence_segments(fabric):
+    """Two commands then the goal: segments run in order, each starting from the previous end state."""
+    fab, params = fabric
+    mid = jnp.asarray([0.6, -0.3, 0.1, -2.0, 0.0, 1.7, 0.8])
+    seq = jax.tree.map(lambda *a: jnp.stack(a), *(fab.with_joint_goal(params, g) for g in (mid, GOAL)))
+    tr = jax.jit(lambda s: rollout_sequence(fab, s, sc.empty(cuboids=1), READY, jnp.zeros(7), fab.reached, steps=700))(seq)
+    assert bool(tr.reached)
+    times = np.asarray(tr.segment_times)
+    assert np.all(times < 7.0) and np.isclose(times.sum(), float(tr.t_goal), atol=1e-4)
+    # the arm passed near the command before heading to the goal
+    k = int(round(times[0] / 0.01))
+    assert float(jnp.linalg.norm(tr.q[k] - mid)) <= fab.joint_tolerance + 1e-6
+    n = int(tr.length)
+    assert np.abs(np.diff(np.asarray(tr.q[:n]), axis=0)).max() < 0.05  # continuous
+
+
+def test_batched_matches_single_and_exits_early(fabric, run, panda):
+    """vmap over problems (goals, scenes of different sizes) equals one-by-one rollouts."""
+    fab, params = fabric
+    target = frame_pose(panda, GOAL, fab.goal_frame)
+    problems = [
+        make_problem(panda, READY, BOX, goal_q=GOAL),
+        make_problem(panda, READY, {"obstacles": []}, goal_pose=(np.asarray(target.translation()), np.asarray(target.rotation().wxyz))),
+        make_problem(panda, GOAL, {"obstacles": BOX["obstacles"] * 3}, goal_q=READY),
+    ]
+    tr = jax.jit(lambda b: reach(fab, params, b, dt=0.01, steps=700))(batch(problems))
+    assert np.all(np.asarray(tr.reached))
+    assert int(jnp.max(tr.length)) < 701  # the batch stopped once every arm was done
+    one = run(fab.with_joint_goal(params, GOAL), sc.from_dict(BOX), READY, jnp.zeros(7))
+    n = int(one.length)
+    assert int(tr.length[0]) == n
+    assert np.allclose(np.asarray(tr.q[0, :n]), np.asarray(one.q[:n]), atol=1e-4)
