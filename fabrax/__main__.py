@@ -1,0 +1,5 @@
+import sys
+
+from fabrax.cli import main
+
+sys.exit(main())

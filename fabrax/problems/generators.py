@@ -1,0 +1,108 @@
+"""Problems that need no data files: a built-in shelf, and random valid problems by rejection sampling."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from fabrax.bench.checker import state_clearances
+from fabrax.problems.problem import Problem, make_problem
+from fabrax.robot.ik import solve_ik
+from fabrax.robot.kinematics import frame_pose
+from fabrax.robot.robot import Robot
+from fabrax.scene import from_dict
+
+
+def shelf(center=(0.65, 0.0, 0.0), width=0.8, depth=0.35, heights=(0.25, 0.55, 0.85), thickness=0.02, yaw=0.0) -> dict:
+    """A bookshelf facing the robot (open side toward the base): boards at `heights`, two sides, a back."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    rot = lambda v: np.array([c * v[0] - s * v[1], s * v[0] + c * v[1], v[2]])  # noqa: E731
+    quat = [float(np.cos(yaw / 2)), 0.0, 0.0, float(np.sin(yaw / 2))]
+    top = max(heights) + 0.1
+    boxes = [((0.0, 0.0, h), (depth, width, thickness)) for h in heights]
+    boxes += [((0.0, sy * width / 2, top / 2), (depth, thickness, top)) for sy in (-1, 1)]
+    boxes += [((depth / 2, 0.0, top / 2), (thickness, width, top))]
+    return {
+        "obstacles": [
+            {"type": "cuboid", "center": (np.asarray(center) + rot(np.asarray(off))).tolist(), "quat_wxyz": quat, "size": list(size)}
+            for off, size in boxes
+        ]
+    }
+
+
+def valid_configs(robot: Robot, scene, qs: np.ndarray, margin: float = 0.02) -> np.ndarray:
+    """Mask of configurations clear of the scene by `margin`, free of self-collision and within limits."""
+    env, slf, ok = state_clearances(robot, scene, jnp.asarray(qs, jnp.float32))
+    return np.asarray((env > margin) & (slf > 0.0) & ok)
+
+
+def sample_configs(robot: Robot, scene, n: int, rng: np.random.Generator, margin: float = 0.02, batch: int = 512) -> np.ndarray:
+    """n valid configurations, uniform within the joint limits, by rejection."""
+    out = []
+    for _ in range(200):
+        qs = rng.uniform(robot.lower, robot.upper, (batch, robot.dof))
+        out.extend(qs[valid_configs(robot, scene, qs, margin)])
+        if len(out) >= n:
+            return np.asarray(out[:n])
+    raise ValueError(f"could not find {n} valid configurations in this scene")
+
+
+def ik_configs(
+    robot, scene, frame, position, quat, rng, seeds: int = 256, tol: float = 1e-3, margin: float = 0.01, limit_margin: float = 0.1, near=None
+) -> np.ndarray:
+    """Valid joint configurations reaching a pose, at least `limit_margin` rad inside the joint
+    limits, ordered by distance to `near` (or by residual); empty if none found."""
+    q0 = jnp.asarray(rng.uniform(robot.lower, robot.upper, (seeds, robot.dof)), jnp.float32)
+    qs, err = solve_ik(robot, frame, jnp.asarray(position, jnp.float32), jnp.asarray(quat, jnp.float32), q0)
+    qs, err = np.asarray(qs), np.asarray(err)
+    inside = np.all((qs > np.asarray(robot.lower) + limit_margin) & (qs < np.asarray(robot.upper) - limit_margin), axis=1)
+    good = (err < tol) & inside & valid_configs(robot, scene, qs, margin)
+    key = err[good] if near is None else np.linalg.norm(qs[good] - near, axis=1)
+    return qs[good][np.argsort(key)]
+
+
+def demo_problem(robot: Robot) -> Problem:
+    """The built-in demo: from the ready posture into the middle cell of a shelf (Panda joint goal).
+
+    The goal posture has the hand 15 cm inside a 45 cm cell, pitched 33 degrees
+    down; straight joint interpolation passes within about a millimetre of the middle board.
+    """
+    if robot.dof != 7:
+        raise ValueError("the built-in demo problem is posed for a 7-joint arm such as the Panda")
+    scene = from_dict(shelf(center=(0.8, 0.0, 0.0), depth=0.4, heights=(0.25, 0.7, 1.1)))
+    ready = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
+    goal = np.array([0.0, 0.5, 0.0, -1.6, 0.0, 3.1, 0.785])
+    return make_problem(robot, ready, scene, goal_q=goal, name="demo_shelf", kind="shelf")
+
+
+def random_problems(robot: Robot, scene_dicts: list[dict], seed: int, goal: str = "joint", frame: str = "panda_hand") -> list[Problem]:
+    """One problem per scene: valid start and goal configurations by rejection sampling
+    (pose goals are the goal configuration's `frame` pose)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for k, sd in enumerate(scene_dicts):
+        scene = from_dict(sd)
+        start, target = sample_configs(robot, scene, 2, rng)
+        if goal == "joint":
+            out.append(make_problem(robot, start, scene, goal_q=target, name=f"random_{seed}_{k}", kind="random"))
+        else:
+            pose = frame_pose(robot, jnp.asarray(target, jnp.float32), frame)
+            gp = (np.asarray(pose.translation()), np.asarray(pose.rotation().wxyz))
+            out.append(make_problem(robot, start, scene, goal_pose=gp, name=f"random_{seed}_{k}", kind="random"))
+    return out
+
+
+def flying_cuboids(rng: np.random.Generator, n: int = (6, 10), r_min: float = 0.35, r_max: float = 1.0) -> dict:
+    """Thesis §3.4.1.2 'flying cuboids': boxes of random size and orientation around the robot."""
+    count = rng.integers(*n, endpoint=True)
+    obs = []
+    for _ in range(count):
+        d = rng.normal(size=3)
+        d[2] = abs(d[2])
+        d /= np.linalg.norm(d)
+        center = d * rng.uniform(r_min, r_max)
+        q = rng.normal(size=4)
+        obs.append({"type": "cuboid", "center": center.tolist(), "quat_wxyz": (q / np.linalg.norm(q)).tolist(), "size": rng.uniform(0.05, 0.25, 3).tolist()})
+    return {"obstacles": obs}
+
