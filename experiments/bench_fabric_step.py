@@ -1,0 +1,115 @@
+"""Fabric step throughput: arm-steps per second for batches of arms, and single-arm latency.
+
+The full Panda fabric (all collision spheres, self-collision pairs, joint
+limits, both attractors, damping, the acceleration/jerk limiter and the
+second-order integrator) steps inside a `lax.scan`, vmapped over arms, on a
+bookshelf-like scene of ~20 cuboids. Writes JSON and a markdown table.
+
+    python experiments/bench_fabric_step.py --out bench_out/fabric_step
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import fabrax  # noqa: F401  (XLA flags before jax)
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from fabrax import config
+from fabrax import scene as sc
+from fabrax.problems.generators import shelf
+from fabrax.rollout import integrate
+
+
+def bookshelf_scene() -> dict:
+    """Two shelves side by side plus clutter: 20 cuboids."""
+    left = shelf(center=(0.7, -0.45, 0.0), width=0.6, depth=0.35, heights=(0.2, 0.5, 0.8))
+    right = shelf(center=(0.7, 0.45, 0.0), width=0.6, depth=0.35, heights=(0.3, 0.65))
+    obs = left["obstacles"] + right["obstacles"]
+    rng = np.random.default_rng(0)
+    while len(obs) < 20:
+        obs.append({"type": "cuboid", "center": [float(rng.uniform(0.55, 0.8)), float(rng.uniform(-0.6, 0.6)), 0.55], "size": [0.06, 0.06, 0.1]})
+    return {"obstacles": obs[:20]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="bench_out/fabric_step")
+    ap.add_argument("--batches", default="1,64,256,1024")
+    ap.add_argument("--steps", type=int, default=200, help="scanned steps per timed call")
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args()
+
+    robot = config.load_robot()
+    fabric, params = config.load_fabric(robot)
+    scene = sc.from_dict(bookshelf_scene())
+    ready = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
+    goal = jnp.asarray([0.0, 0.5, 0.0, -1.6, 0.0, 3.1, 0.785])
+    p = fabric.with_joint_goal(params, goal)
+    dt = 0.01
+
+    def run(q0, qd0):
+        def body(c, _):
+            q, qd, _, _ = integrate(fabric, p, scene, c[0], c[1], dt)
+            return (q, qd), None
+
+        return jax.lax.scan(body, (q0, qd0), None, length=args.steps)[0]
+
+    rows = []
+    for b in [int(x) for x in args.batches.split(",")]:
+        rng = np.random.default_rng(b)
+        q0 = jnp.asarray(ready + rng.normal(scale=0.05, size=(b, 7)), jnp.float32)
+        qd0 = jnp.zeros((b, 7), jnp.float32)
+        fn = jax.jit(jax.vmap(run))
+        t0 = time.perf_counter()
+        compiled = fn.lower(q0, qd0).compile()
+        compile_s = time.perf_counter() - t0
+        jax.block_until_ready(compiled(q0, qd0))
+        best = np.inf
+        for _ in range(args.repeats):
+            t0 = time.perf_counter()
+            jax.block_until_ready(compiled(q0, qd0))
+            best = min(best, time.perf_counter() - t0)
+        rows.append(
+            {
+                "batch": b,
+                "arm_steps_per_s": b * args.steps / best,
+                "us_per_step": best / args.steps * 1e6,
+                "us_per_arm_step": best / args.steps / b * 1e6,
+                "compile_s": compile_s,
+            }
+        )
+        print(json.dumps(rows[-1]))
+
+    meta = {
+        "spheres": robot.n_spheres,
+        "self_pairs": int(robot.pair_i.shape[0]),
+        "primitives": scene.n_primitives,
+        "steps_per_call": args.steps,
+        "dt": dt,
+        "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(), "jax": jax.__version__, "devices": str(jax.devices())},
+        "xla_flags": os.environ.get("XLA_FLAGS", ""),
+    }
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "results.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))
+    lines = [
+        f"Panda fabric step: {meta['spheres']} spheres x {meta['primitives']} cuboids, {meta['self_pairs']} self pairs, {meta['machine']['cpus']} CPUs",
+        "",
+        "| arms | arm-steps/s | us per step | us per arm-step | compile s |",
+        "|---:|---:|---:|---:|---:|",
+    ]
+    lines += [f"| {r['batch']} | {r['arm_steps_per_s']:,.0f} | {r['us_per_step']:.1f} | {r['us_per_arm_step']:.2f} | {r['compile_s']:.1f} |" for r in rows]
+    (out / "summary.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
