@@ -184,3 +184,32 @@ def test_no_nan_at_singular_states(fabric):
         assert bool(jnp.all(jnp.isfinite(out))), (q, qd)
     ev = jax.jit(fab.evaluate)(p, free, goal, jnp.zeros(7))
     assert bool(jnp.all(jnp.isfinite(ev.spec.f))) and float(jnp.abs(ev.alpha)) < 1e-3
+
+
+def test_resolutions_agree_where_they_coincide(fabric, panda):
+    """With one obstacle the scene distance is that obstacle's; with one pair per group, groups are pairs."""
+    from fabrax.fabrics.terms import TermInputs, obstacle_repulsion, self_collision
+    from fabrax.robot import build_robot
+
+    fab, params = fabric
+    scene = sc.from_dict(BAR)
+    q, qd = jnp.asarray(READY), jnp.asarray(V0, jnp.float32)
+    kin = point_kinematics(panda, q, qd, panda.sphere_frame, panda.sphere_local)
+    inputs = TermInputs(q, qd, kin, scene, panda)
+    a = obstacle_repulsion(resolution="scene")
+    b = obstacle_repulsion(resolution="primitive")
+    ca, cb = a.apply(a.init(), inputs), b.apply(b.init(), inputs)
+    assert float(ca.clearance) < 0.25  # active
+    for f in ("M", "f_geom", "f_energy", "f_force"):
+        assert jnp.allclose(getattr(ca, f), getattr(cb, f), rtol=1e-4, atol=1e-5), f
+    cfg = config.load("robot", "panda")
+    cfg["self_collision"]["group_width"] = 1
+    ungrouped = build_robot(cfg)
+    kin = point_kinematics(ungrouped, q, qd, ungrouped.sphere_frame, ungrouped.sphere_local)
+    inputs = TermInputs(q, qd, kin, scene, ungrouped)
+    s1, s2 = self_collision(resolution="link"), self_collision(resolution="sphere")
+    c1, c2 = s1.apply(s1.init(), inputs), s2.apply(s2.init(), inputs)
+    for f in ("M", "f_geom", "f_energy", "f_force"):
+        assert jnp.allclose(getattr(c1, f), getattr(c2, f), rtol=1e-4, atol=1e-5), f
+    with pytest.raises(ValueError, match="resolution"):
+        obstacle_repulsion(resolution="link")

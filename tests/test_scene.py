@@ -101,3 +101,20 @@ def test_bad_scene_raises_named_field(bad, field):
 def test_capacity_overflow_raises():
     with pytest.raises(ValueError, match="capacity"):
         sc.from_dict({"obstacles": SCENE["obstacles"] * 2}, capacity={"cuboids": 1})
+
+
+def test_argmin_packed_and_nearest_distance():
+    rng = np.random.default_rng(4)
+    v = jnp.asarray(rng.uniform(-0.5, 5.0, (40, 23)), jnp.float32)
+    assert np.array_equal(np.asarray(sc.sdf.argmin_packed(v)), np.asarray(jnp.argmin(v, -1)))
+    scene = sc.from_dict({**SCENE, "points": [[0.9, 0.9, 0.9]]}, capacity={"cuboids": 4})
+    pts = jnp.asarray(rng.uniform(-0.6, 1.0, (3, 64)), jnp.float32)
+    vel = jnp.asarray(rng.normal(size=(3, 64)), jnp.float32)
+    near = sc.sdf.nearest_distance(scene, pts, vel)
+    every = sc.distance_kinematics(scene, pts, vel)
+    k = jnp.argmin(every.d, 0)
+    pick = lambda a: jnp.take_along_axis(a, k[None], 0)[0]  # noqa: E731
+    assert np.allclose(near.d, every.d.min(0), atol=1e-6)
+    assert np.array_equal(np.asarray(near.slot), np.asarray(k))
+    assert np.allclose(near.n, jnp.stack([pick(every.n[c]) for c in range(3)]), atol=1e-5)
+    assert np.allclose(near.rate, pick(every.rate), atol=1e-5) and np.allclose(near.curv, pick(every.curv), atol=1e-4)

@@ -29,6 +29,7 @@ from fabrax.fabrics.lagrangian import eom, eom_elementwise, hd2_geometry
 from fabrax.robot.kinematics import PointKinematics
 from fabrax.robot.robot import Robot
 from fabrax.scene import FAR, Scene, distance_kinematics
+from fabrax.scene.sdf import argmin_packed, nearest_distance
 from fabrax.soa import dot0, matvec0
 
 
@@ -287,16 +288,45 @@ def _pull_spheres(kin: PointKinematics, m3, g3, e3, f3) -> tuple:
     return _unpack_metric(n, sums[: len(upper)]), jnp.stack(rest[:n]), jnp.stack(rest[n : 2 * n]), jnp.stack(rest[2 * n :])
 
 
-def obstacle_repulsion(name: str = "obstacles", **overrides) -> Term:
-    """Repulsion of every collision sphere from every scene primitive (thesis §3.3.3).
+def _pulled_pairs(p, x, rate, curv, u: list[jax.Array]) -> Contribution:
+    """1-D distance specs x with rate and curvature term, pulled back through u_k = J_x^T (one vector per
+    distance, as rows u[a] over the pairs): M = sum m u u^T, f = sum u (m (h2 + curv)), ...  (eqs. 2.55, 2.60)."""
+    m, fe, h, h2, dpsi, psi = _distance_terms(p, x, rate)
+    vectors = [m * (h2 + curv), fe + m * curv, dpsi]
+    sums, (clear,) = _reduce(_metric_products(u, m) + [ua * v for v in vectors for ua in u] + [h, psi], [x + p["margin"]])
+    d = len(u)
+    nm = d * (d + 1) // 2
+    M = _unpack_metric(d, sums[:nm])
+    fg, fen, ff = (jnp.stack(sums[nm + k * d : nm + (k + 1) * d]) for k in range(3))
+    return Contribution(M, fg, fen, ff, jnp.zeros_like(M), sums[-2], sums[-1], clear)
 
-    Task maps x = sd(p_s) - r_s - margin for each (primitive, sphere) pair;
-    their 1-D specs are reduced per sphere to a 3x3 metric and 3-vectors
-    (sum n m n^T, sum n m (h2 + pd^T H pd), ...), then pulled back once per sphere.
+
+RESOLUTIONS = ("link", "sphere")
+
+
+def _check_resolution(resolution: str, name: str) -> None:
+    if resolution not in RESOLUTIONS:
+        raise ValueError(f"fabric term '{name}': resolution must be one of {RESOLUTIONS}, got '{resolution}'")
+
+
+def obstacle_repulsion(name: str = "obstacles", resolution: str = "scene", **overrides) -> Term:
+    """Repulsion of every collision sphere from the scene (thesis §3.3.3).
+
+    resolution="scene": one distance per sphere, to the scene as a whole (the
+    signed distance of the union of primitives = the min over them); every
+    (sphere, primitive) distance is evaluated, the energy and one pullback run
+    per sphere through its Jacobian from the one kinematics pass.
+    resolution="primitive": one distance per (sphere, primitive); the 1-D specs
+    are reduced per sphere to a 3x3 metric and 3-vectors (sum n m n^T,
+    sum n m (h2 + pd^T H pd), ...), then pulled back once per sphere. Several
+    obstacles near one sphere all push, and nothing switches where two are
+    equidistant, at several times the cost.
     """
+    if resolution not in ("scene", "primitive"):
+        raise ValueError(f"fabric term '{name}': resolution must be 'scene' or 'primitive', got '{resolution}'")
     init = _params(_distance_defaults(), overrides, name)
 
-    def apply(p, inp: TermInputs) -> Contribution:
+    def apply_sphere(p, inp: TermInputs) -> Contribution:
         kin = inp.points
         pd = distance_kinematics(inp.scene, kin.x, kin.xd)
         x = pd.d - inp.robot.sphere_radius[None, :] - p["margin"]  # (K, N)
@@ -310,34 +340,45 @@ def obstacle_repulsion(name: str = "obstacles", **overrides) -> Term:
         M, fg, fen, ff = _pull_spheres(kin, m3, g3, e3, f3)
         return Contribution(M, fg, fen, ff, jnp.zeros_like(M), jnp.sum(sums[15]), jnp.sum(sums[16]), jnp.min(clear))
 
-    return Term(name, init, apply, _spheres)
+    def apply_scene(p, inp: TermInputs) -> Contribution:
+        kin, robot = inp.points, inp.robot
+        near = nearest_distance(inp.scene, kin.x, kin.xd)
+        x = near.d - robot.sphere_radius - p["margin"]
+        curv = near.curv + dot0(near.n, kin.jdqd)  # Jdot qd of x: pd^T H pd + n . (Jdot qd)_sphere
+        u = [dot0(kin.jac[:, a], near.n) for a in range(kin.jac.shape[1])]
+        return _pulled_pairs(p, x, near.rate, curv, u)
+
+    return Term(name, init, apply_scene if resolution == "scene" else apply_sphere, _spheres)
 
 
-def self_collision(name: str = "self_collision", **overrides) -> Term:
-    """Repulsion between the robot's own sphere pairs (thesis §3.3.3), x = |p_i - p_j| - r_i - r_j.
+def self_collision(name: str = "self_collision", resolution: str = "link", **overrides) -> Term:
+    """Repulsion between the robot's own links (thesis §3.3.3), x = |p_i - p_j| - r_i - r_j.
 
-    Each pair pulls back through both spheres: u = J_i^T n - J_j^T n, M = sum m u u^T.
+    resolution="link": one distance per group of checked sphere pairs of one
+    pair of links (at most `robot.pair_groups.shape[1]` pairs a group; the
+    group's closest pair); "sphere": every checked sphere pair. Each distance
+    pulls back through both spheres: u = J_i^T n - J_j^T n, M = sum m u u^T.
     """
+    _check_resolution(resolution, name)
     init = _params(_distance_defaults(), overrides, name)
 
     def apply(p, inp: TermInputs) -> Contribution:
         kin, robot = inp.points, inp.robot
         i, j = robot.pair_i, robot.pair_j
+        if resolution == "link":
+            rel = kin.x[:, i] - kin.x[:, j]
+            gap = jnp.sqrt(dot0(rel, rel)) - robot.sphere_radius[i] - robot.sphere_radius[j]
+            grouped = jnp.where(robot.pair_groups_mask, gap[robot.pair_groups], FAR)
+            best = jnp.take_along_axis(robot.pair_groups, argmin_packed(grouped, span=4.0)[:, None], -1)[:, 0]
+            i, j = i[best], j[best]
         rel, reld = kin.x[:, i] - kin.x[:, j], kin.xd[:, i] - kin.xd[:, j]  # (3, P)
         dist = jnp.sqrt(dot0(rel, rel) + 1e-18)
         nrm = rel / dist
         rate = dot0(nrm, reld)
         curv = (dot0(reld, reld) - rate * rate) / dist + dot0(nrm, kin.jdqd[:, i] - kin.jdqd[:, j])
         x = dist - robot.sphere_radius[i] - robot.sphere_radius[j] - p["margin"]
-        m, fe, h, h2, dpsi, psi = _distance_terms(p, x, rate)
         u = [dot0(kin.jac[:, a][:, i] - kin.jac[:, a][:, j], nrm) for a in range(kin.jac.shape[1])]  # J_i^T n - J_j^T n
-        vectors = [m * (h2 + curv), fe + m * curv, dpsi]
-        sums, (clear,) = _reduce(_metric_products(u, m) + [ua * v for v in vectors for ua in u] + [h, psi], [x + p["margin"]])
-        d = len(u)
-        nm = d * (d + 1) // 2
-        M = _unpack_metric(d, sums[:nm])
-        fg, fen, ff = (jnp.stack(sums[nm + k * d : nm + (k + 1) * d]) for k in range(3))
-        return Contribution(M, fg, fen, ff, jnp.zeros_like(M), sums[-2], sums[-1], clear)
+        return _pulled_pairs(p, x, rate, curv, u)
 
     return Term(name, init, apply, _spheres)
 

@@ -71,41 +71,37 @@ def points(robot, q, frame, local):
 def point_kinematics(robot, q, qd, frame, local) -> PointKinematics:
     """Positions, Jacobians, velocities J qd and curvature terms Jdot qd of points (frame (N,), local (N, 3)).
 
-    One pass over the tree propagates frame velocities and (qdd = 0)
-    accelerations (recursive Newton-Euler kinematics); Jacobian columns are
-    z_j x (p - o_j) for revolute and z_j for prismatic ancestors j. Agrees with
-    nested forward-mode autodiff of `points` (tested) at a fraction of its cost.
+    Geometric Jacobian: column i is z_i x (p - o_i) for a revolute and z_i for
+    a prismatic joint i that moves the point. Its time derivative along qd,
+    summed over joints, gives Jdot qd without a recursion over the tree:
+    d/dt[z_i x (p - o_i)] = (w_i x z_i) x (p - o_i) + z_i x (pd - od_i), with w_i
+    the angular velocity of joint i's frame and od_i the velocity of its
+    origin. Agrees with nested forward-mode autodiff of `points` (tested), in
+    a handful of vectorised kernels.
     """
     r, t = frame_transforms(robot, q)
-    z = _mv(r[1:], robot.joint_axis)  # (n, 3) world joint axes
-    zero = jnp.zeros(3, q.dtype)
-    w, v, aw, av = [zero], [zero], [zero], [zero]  # angular/linear velocity and acceleration per frame
-    for k, p in enumerate(robot.joint_parent):
-        p = p + 1
-        rel = t[k + 1] - t[p]
-        zq = z[k] * qd[k]
-        wp_rel = jnp.cross(w[p], rel)
-        av_k = av[p] + jnp.cross(aw[p], rel) + jnp.cross(w[p], wp_rel)
-        if robot.joint_revolute[k]:
-            w.append(w[p] + zq)
-            v.append(v[p] + wp_rel)
-            aw.append(aw[p] + jnp.cross(w[p], zq))
-            av.append(av_k)
-        else:
-            w.append(w[p])
-            v.append(v[p] + wp_rel + zq)
-            aw.append(aw[p])
-            av.append(av_k + 2.0 * jnp.cross(w[p], zq))
-    soa = lambda rows: jnp.stack(rows, -1)[:, frame]  # noqa: E731  (3, N): per-frame vectors at each point
-    x = jnp.stack([dot0(jnp.moveaxis(r, 0, -1)[c][:, frame], local.T) for c in range(3)]) + t.T[:, frame]
-    rel = x - t.T[:, frame]
-    wf, awf = soa(w), soa(aw)
-    xd = soa(v) + cross0(wf, rel)
-    jdqd = soa(av) + cross0(awf, rel) + cross0(wf, cross0(wf, rel))
-    zt = z.T[:, :, None]  # (3, n, 1)
-    cols = cross0(zt, x[:, None, :] - t[1:].T[:, :, None])  # (3, n, N)
-    cols = jnp.where(jnp.asarray(robot.joint_revolute)[None, :, None], cols, zt)
-    jac = jnp.where(robot.ancestors[frame].T[None], cols, 0.0)
+    rev = jnp.asarray(robot.joint_revolute)  # (n,)
+    z = _mv(r[1:], robot.joint_axis).T  # (3, n) world joint axes
+    o = t[1:].T  # (3, n) joint origins
+    zq = z * qd  # (3, n)
+    anc = robot.ancestors[1:].T  # (n_i, n_j): joint i moves joint frame j
+
+    def lin(p):  # (3, n, M): velocity that each joint gives to points p (3, M)
+        return jnp.where(rev[None, :, None], cross0(zq[:, :, None], p[:, None, :] - o[:, :, None]), zq[:, :, None])
+
+    od = jnp.sum(jnp.where(anc[None], lin(o), 0.0), axis=1)  # (3, n) joint-origin velocities
+    w = jnp.sum(jnp.where((anc & rev[:, None])[None], zq[:, :, None], 0.0), axis=1)  # (3, n) joint-frame angular velocities
+    wz = cross0(w, z)  # (3, n): dz_i/dt
+
+    x = jnp.stack([dot0(jnp.moveaxis(r, 0, -1)[c][:, frame], local.T) for c in range(3)]) + t.T[:, frame]  # (3, N)
+    moves = robot.ancestors[frame].T[None]  # (1, n, N)
+    arm = x[:, None, :] - o[:, :, None]  # (3, n, N)
+    jac = jnp.where(moves, jnp.where(rev[None, :, None], cross0(z[:, :, None], arm), z[:, :, None]), 0.0)
+    xd = sum(jac[:, i] * qd[i] for i in range(jac.shape[1]))
+    jdot = jnp.where(
+        rev[None, :, None], cross0(wz[:, :, None], arm) + cross0(z[:, :, None], xd[:, None, :] - od[:, :, None]), wz[:, :, None]
+    )
+    jdqd = sum(jnp.where(moves[0, i], jdot[:, i] * qd[i], 0.0) for i in range(jac.shape[1]))
     return PointKinematics(x, jac, xd, jdqd)
 
 

@@ -48,6 +48,10 @@ class Robot:
     sphere_link: jax.Array  # (S,) index into sphere_link_names
     pair_i: jax.Array  # (P,) self-collision sphere pairs
     pair_j: jax.Array
+    link_spheres: jax.Array  # (Ls, S) spheres of each sphere-carrying link, padded
+    link_spheres_mask: jax.Array  # (Ls, S)
+    pair_groups: jax.Array  # (G, Q) indices into pair_i/pair_j: pairs of one pair of links, at most Q per row, padded
+    pair_groups_mask: jax.Array  # (G, Q)
 
     @property
     def dof(self) -> int:
@@ -244,6 +248,10 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
         sphere_link=jnp.asarray(s_link, jnp.int32),
         pair_i=jnp.zeros((0,), jnp.int32),
         pair_j=jnp.zeros((0,), jnp.int32),
+        link_spheres=jnp.zeros((0, 0), jnp.int32),
+        link_spheres_mask=jnp.zeros((0, 0), bool),
+        pair_groups=jnp.zeros((0, 0), jnp.int32),
+        pair_groups_mask=jnp.zeros((0, 0), bool),
     )
     sc = dict(cfg.get("self_collision") or {})
     reference = np.asarray(sc.get("reference_q", cfg.get("default_q")) or np.zeros((0, n)), dtype=np.float64).reshape(-1, n)
@@ -259,4 +267,30 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
         float(sc.get("near_distance", 0.05)),
         float(sc.get("near_fraction", 0.5)),
     )
-    return robot.replace(pair_i=jnp.asarray(pi), pair_j=jnp.asarray(pj))
+    s_link = np.asarray(s_link)
+    links, link_mask = _groups([np.nonzero(s_link == k)[0] for k in range(len(link_names))])
+    key = s_link[pi] * len(link_names) + s_link[pj]
+    width = int(sc.get("group_width", 16))
+    chunks = [m[c : c + width] for k in np.unique(key) for m in [np.nonzero(key == k)[0]] for c in range(0, len(m), width)]
+    groups, group_mask = _groups(chunks)
+    return robot.replace(
+        pair_i=jnp.asarray(pi),
+        pair_j=jnp.asarray(pj),
+        link_spheres=jnp.asarray(links),
+        link_spheres_mask=jnp.asarray(link_mask),
+        pair_groups=jnp.asarray(groups),
+        pair_groups_mask=jnp.asarray(group_mask),
+    )
+
+
+def _groups(members: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Ragged index lists as a padded (G, max) array (padding repeats the first member) and its mask."""
+    members = [m for m in members if len(m)]
+    width = max((len(m) for m in members), default=0)
+    out = np.zeros((len(members), width), np.int32)
+    mask = np.zeros((len(members), width), bool)
+    for g, m in enumerate(members):
+        out[g] = m[0]
+        out[g, : len(m)] = m
+        mask[g, : len(m)] = True
+    return out, mask

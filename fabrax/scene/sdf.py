@@ -34,11 +34,11 @@ class PairDistances(NamedTuple):
 
 
 def _local(center, rot, x, xd):
-    """Point positions and velocities in each primitive's frame: (3, K, N) each."""
-    dp = x[:, None, :] - center.T[:, :, None]
+    """Point positions and velocities in each primitive's frame: (3, K, N) each; x, xd are (3, K or 1, N)."""
+    dp = x - center.T[:, :, None]
     rt = jnp.moveaxis(rot, 0, -1)  # (3, 3, K): rt[c, i, k] = R_k[c, i]
     pl = jnp.stack([sum(rt[c, i][:, None] * dp[c] for c in range(3)) for i in range(3)])
-    vl = jnp.stack([sum(rt[c, i][:, None] * xd[c][None, :] for c in range(3)) for i in range(3)])
+    vl = jnp.stack([sum(rt[c, i][:, None] * xd[c] for c in range(3)) for i in range(3)])
     return pl, vl, rt
 
 
@@ -52,7 +52,7 @@ def _boxes(center, rot, half, x, xd):
     q = jnp.abs(pl) - half.T[:, :, None]
     m = jnp.maximum(q, 0.0)
     dout = jnp.sqrt(dot0(m, m) + _EPS2)
-    qmax = jnp.max(q, 0)
+    qmax = jnp.maximum(jnp.maximum(q[0], q[1]), q[2])
     outside = qmax > 0.0
     sign = jnp.where(pl >= 0.0, 1.0, -1.0)
     top = q >= qmax[None]
@@ -86,11 +86,11 @@ def _cylinders(center, rot, radius, half_length, x, xd):
 
 def _balls(center, radius, x, xd):
     """Spheres (and cloud points, radius 0): |p - c| - r."""
-    dp = x[:, None, :] - center.T[:, :, None]
+    dp = x - center.T[:, :, None]
     dist = jnp.sqrt(dot0(dp, dp) + _EPS2)
     n = dp / dist[None]
-    rate = dot0(n, xd[:, None, :])
-    curv = (dot0(xd, xd)[None] - rate * rate) / dist
+    rate = dot0(n, xd)
+    curv = (dot0(xd, xd) - rate * rate) / dist
     return dist - radius[:, None], n, rate, curv
 
 
@@ -99,25 +99,91 @@ def _rot(quat):
 
 
 def distance_kinematics(scene: Scene, x: jax.Array, xd: jax.Array) -> PairDistances:
-    """Distance task maps x = sd(p) of every (primitive slot, point) pair; x, xd are (3, N)."""
+    """Distance task maps x = sd(p) of (primitive slot, point) pairs.
+
+    x, xd are (3, N): every point against every slot; or (3, K, M): slot k
+    against its own M points (e.g. the closest sphere of each link).
+    """
+    if x.ndim == 2:
+        x, xd = x[:, None, :], xd[:, None, :]
     c, y, s, pc = scene.cuboids, scene.cylinders, scene.spheres, scene.cloud
+    sizes = [c.mask.shape[0], y.mask.shape[0], s.mask.shape[0], pc.mask.shape[0]]
+    starts = [sum(sizes[:i]) for i in range(4)]
+
+    def pts(i):  # the points that kind i is measured against
+        if x.shape[1] == 1:
+            return x, xd
+        return x[:, starts[i] : starts[i] + sizes[i]], xd[:, starts[i] : starts[i] + sizes[i]]
+
     parts = []
-    if c.mask.shape[0]:
-        parts.append((_boxes(c.center, _rot(c.quat), c.half_extents, x, xd), c.mask))
-    if y.mask.shape[0]:
-        parts.append((_cylinders(y.center, _rot(y.quat), y.radius, y.half_length, x, xd), y.mask))
-    if s.mask.shape[0]:
-        parts.append((_balls(s.center, s.radius, x, xd), s.mask))
-    if pc.mask.shape[0]:
-        parts.append((_balls(pc.points, jnp.zeros(pc.mask.shape, x.dtype), x, xd), pc.mask))
+    if sizes[0]:
+        parts.append((_boxes(c.center, _rot(c.quat), c.half_extents, *pts(0)), c.mask))
+    if sizes[1]:
+        parts.append((_cylinders(y.center, _rot(y.quat), y.radius, y.half_length, *pts(1)), y.mask))
+    if sizes[2]:
+        parts.append((_balls(s.center, s.radius, *pts(2)), s.mask))
+    if sizes[3]:
+        parts.append((_balls(pc.points, jnp.zeros(pc.mask.shape, x.dtype), *pts(3)), pc.mask))
     if not parts:
-        n = x.shape[1]
+        n = x.shape[2]
         z = jnp.zeros((0, n), x.dtype)
         return PairDistances(z, jnp.zeros((3, 0, n), x.dtype), z, z, jnp.zeros((0,), bool))
     mask = jnp.concatenate([m for _, m in parts])
     d, n, rate, curv = (jnp.concatenate([p[i] for p, _ in parts], axis=1 if i == 1 else 0) for i in range(4))
     live = mask[:, None]
     return PairDistances(jnp.where(live, d, FAR), n * live[None], rate * live, curv * live, mask)
+
+
+def argmin_packed(values: jax.Array, span: float = 8.0) -> jax.Array:
+    """Index of the smallest value along the last axis (ties within 1 um: the first).
+
+    One integer min-reduction over keys that pack the value (quantised to 1 um,
+    clipped to [-1, span - 1]) above the index: XLA vectorises a plain min but
+    runs an argmin's (value, index) reduction as scalar code.
+    """
+    width = values.shape[-1]
+    bits = max(1, int(width - 1).bit_length())
+    if span * 1e6 * (1 << bits) >= 2**31:
+        raise ValueError(f"too many entries ({width}) to pack with span {span}")
+    level = jnp.round((jnp.clip(values, -1.0, span - 1.0) + 1.0) * 1e6).astype(jnp.int32)
+    return jnp.min(level * (1 << bits) + jnp.arange(width, dtype=jnp.int32), axis=-1) & ((1 << bits) - 1)
+
+
+class NearestDistance(NamedTuple):
+    d: jax.Array  # (N,) signed distance to the scene (the union of its primitives)
+    n: jax.Array  # (3, N) gradient
+    rate: jax.Array  # (N,)
+    curv: jax.Array  # (N,)
+    slot: jax.Array  # (N,) primitive slot that is nearest
+
+
+def nearest_distance(scene: Scene, x: jax.Array, xd: jax.Array) -> NearestDistance:
+    """Distance from each point (3, N) to the whole scene, min over primitives, with its derivatives.
+
+    Every (point, slot) distance is computed (values only); the derivatives are
+    then evaluated once per point, against its nearest slot of each kind.
+    """
+    c, y, s, pc = scene.cuboids, scene.cylinders, scene.spheres, scene.cloud
+    kinds = [
+        (_boxes, (c.center, _rot(c.quat), c.half_extents), c.mask),
+        (_cylinders, (y.center, _rot(y.quat), y.radius, y.half_length), y.mask),
+        (_balls, (s.center, s.radius), s.mask),
+        (_balls, (pc.points, jnp.zeros(pc.mask.shape, x.dtype)), pc.mask),
+    ]
+    best, start = None, 0
+    for fn, params, mask in kinds:
+        k = mask.shape[0]
+        if k:
+            d_all = jnp.where(mask[:, None], fn(*params, x[:, None, :], xd[:, None, :])[0], FAR)  # (K, N), values only
+            idx = argmin_packed(d_all.T)  # (N,)
+            d, n, rate, curv = fn(*(a[idx] for a in params), x[:, :, None], xd[:, :, None])
+            cand = NearestDistance(jnp.where(mask[idx], d[:, 0], FAR), n[:, :, 0], rate[:, 0], curv[:, 0], idx + start)
+            best = cand if best is None else jax.tree.map(lambda a, b: jnp.where(cand.d < best.d, a, b), cand, best)
+        start += k
+    if best is None:
+        z = jnp.zeros(x.shape[1], x.dtype)
+        return NearestDistance(z + FAR, jnp.zeros_like(x), z, z, jnp.zeros(x.shape[1], jnp.int32))
+    return best
 
 
 def primitive_mask(scene: Scene) -> jax.Array:
