@@ -17,11 +17,11 @@ import platform
 import time
 from pathlib import Path
 
-import fabrax  # noqa: F401  (XLA flags before jax)
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+import fabrax  # noqa: F401  (XLA flags before jax)
 from fabrax import config
 from fabrax import scene as sc
 from fabrax.problems.generators import shelf
@@ -94,19 +94,27 @@ def main() -> None:
         "primitives": scene.n_primitives,
         "steps_per_call": args.steps,
         "dt": dt,
-        "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(), "jax": jax.__version__, "devices": str(jax.devices())},
+        "machine": {
+            "cpus": os.cpu_count(),
+            "processor": platform.processor() or platform.machine(),
+            "jax": jax.__version__,
+            "devices": str(jax.devices()),
+        },
         "xla_flags": os.environ.get("XLA_FLAGS", ""),
     }
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "results.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))
     lines = [
-        f"Panda fabric step: {meta['spheres']} spheres x {meta['primitives']} cuboids, {meta['self_pairs']} self pairs, {meta['machine']['cpus']} CPUs",
+        f"Panda fabric step: {meta['spheres']} spheres x {meta['primitives']} cuboids, "
+        f"{meta['self_pairs']} self pairs, {meta['machine']['cpus']} CPUs",
         "",
         "| arms | arm-steps/s | us per step | us per arm-step | compile s |",
         "|---:|---:|---:|---:|---:|",
     ]
-    lines += [f"| {r['batch']} | {r['arm_steps_per_s']:,.0f} | {r['us_per_step']:.1f} | {r['us_per_arm_step']:.2f} | {r['compile_s']:.1f} |" for r in rows]
+    lines += [
+        f"| {r['batch']} | {r['arm_steps_per_s']:,.0f} | {r['us_per_step']:.1f} | {r['us_per_arm_step']:.2f} | {r['compile_s']:.1f} |" for r in rows
+    ]
     (out / "summary.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

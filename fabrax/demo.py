@@ -60,8 +60,16 @@ def main(argv: list[str] | None = None) -> int:
         "setup_and_compile_s": round(t1 - t0, 2),
     }
     out = Path(args.out)
-    np.savez(out, q=q, qd=np.asarray(tr.qd[0, :n]), qdd=np.asarray(tr.qdd[0, :n]), dt=args.dt, joint_names=np.asarray(robot.joint_names),
-             goal_q=problem.goal_q, report=json.dumps(report))
+    np.savez(
+        out,
+        q=q,
+        qd=np.asarray(tr.qd[0, :n]),
+        qdd=np.asarray(tr.qdd[0, :n]),
+        dt=args.dt,
+        joint_names=np.asarray(robot.joint_names),
+        goal_q=problem.goal_q,
+        report=json.dumps(report),
+    )
     for k, v in report.items():
         print(f"{k:>22}: {v}")
     print(f"{'trajectory':>22}: {out}")

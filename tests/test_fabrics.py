@@ -7,8 +7,8 @@ import pytest
 
 from fabrax import config
 from fabrax import scene as sc
-from fabrax.fabrics import energize, eom, pullback, unforced
 from fabrax.fabrics import energies as E
+from fabrax.fabrics import energize, eom, pullback, unforced
 from fabrax.fabrics.lagrangian import eom_elementwise, hd2_geometry
 from fabrax.fabrics.spec import Spec
 from fabrax.robot import point_kinematics
@@ -165,7 +165,9 @@ def test_no_nan_at_singular_states(fabric):
     # an obstacle whose face is 1 mm from the surface of one collision sphere at READY
     x = point_kinematics(robot, jnp.asarray(READY), jnp.zeros(7), robot.sphere_frame, robot.sphere_local).x
     c, r = x[:, 30], robot.sphere_radius[30]
-    near = sc.from_dict({"obstacles": [{"type": "cuboid", "center": [float(c[0]) + float(r) + 0.001 + 0.05, float(c[1]), float(c[2])], "size": [0.1, 0.1, 0.1]}]})
+    near = sc.from_dict(
+        {"obstacles": [{"type": "cuboid", "center": [float(c[0]) + float(r) + 0.001 + 0.05, float(c[1]), float(c[2])], "size": [0.1, 0.1, 0.1]}]}
+    )
     inside = sc.from_dict({"obstacles": [{"type": "sphere", "center": [float(v) for v in c], "radius": 0.05}]})
     free = sc.empty(cuboids=1)
     cases = [

@@ -7,9 +7,9 @@ from fabrax import config
 from fabrax import scene as sc
 from fabrax.bench import check_path
 from fabrax.fabrics import max_acceleration
+from fabrax.problems import batch, make_problem
 from fabrax.robot import frame_pose
 from fabrax.rollout import reach, rollout, rollout_sequence
-from fabrax.problems import batch, make_problem
 
 READY = jnp.asarray([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
 GOAL = jnp.asarray([1.2, 0.3, 0.2, -1.6, 0.1, 1.9, 0.8])

@@ -116,7 +116,9 @@ def joint_attractor(name: str = "joint_attractor", n: int = 7, **overrides) -> T
 
 def joint_limits(name: str = "joint_limits", **overrides) -> Term:
     """Distance-space repulsion from both limits of every joint (thesis §3.3.3, x = q - lower, upper - q)."""
-    defaults = dict(k_metric=0.2, sigma=0.05, reach=0.3, k_barrier=0.5, k_soft=0.5, soft_width=0.03, x0=0.05, floor=1e-3, k_force=0.05)
+    defaults = dict(
+        k_metric=0.2, sigma=0.05, reach=0.3, k_barrier=0.5, k_soft=0.5, soft_width=0.03, x0=0.05, floor=1e-3, k_force=0.05, force_reach=0.1
+    )
     init = _params(defaults, overrides, name)
 
     def apply(p, inp: TermInputs) -> Contribution:
@@ -230,13 +232,27 @@ def _distance_terms(p, x, xd):
     energy = lambda x_, xd_: E.gated_barrier_energy(x_, xd_, p["k_metric"], p["sigma"], p["reach"], p["floor"])  # noqa: E731
     m, fe, h = eom_elementwise(energy, x, xd)
     geometry = lambda x_: E.barrier_potential(x_, p["k_barrier"], p["k_soft"], p["soft_width"], p["x0"], p["reach"], p["floor"])  # noqa: E731
-    psi, dpsi = geometry(x), jax.grad(lambda x_: jnp.sum(geometry(x_)))(x)
-    return m, fe, h, xd * xd * dpsi, p["k_force"] * dpsi, p["k_force"] * psi
+    dpsi_g = jax.grad(lambda x_: jnp.sum(geometry(x_)))(x)
+    # the forcing copy of the barrier (thesis: "weighted significantly less") is also shorter-ranged,
+    # so that it only acts where the geometry alone would let the arm touch
+    forcing = lambda x_: p["k_force"] * E.barrier_potential(x_, p["k_barrier"], 0.0, p["soft_width"], p["x0"], p["force_reach"], p["floor"])  # noqa: E731
+    psi, dpsi = forcing(x), jax.grad(lambda x_: jnp.sum(forcing(x_)))(x)
+    return m, fe, h, xd * xd * dpsi_g, dpsi, psi
 
 
 def _distance_defaults():
     return dict(
-        margin=0.0, k_metric=0.5, sigma=0.02, reach=0.25, k_barrier=0.2, k_soft=0.5, soft_width=0.025, x0=0.03, floor=2e-3, k_force=0.1
+        margin=0.0,
+        k_metric=0.5,
+        sigma=0.02,
+        reach=0.25,
+        k_barrier=0.2,
+        k_soft=0.5,
+        soft_width=0.025,
+        x0=0.03,
+        floor=2e-3,
+        k_force=0.1,
+        force_reach=0.05,
     )
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -37,11 +36,18 @@ def valid_configs(robot: Robot, scene, qs: np.ndarray, margin: float = 0.02) -> 
     return np.asarray((env > margin) & (slf > 0.0) & ok)
 
 
-def sample_configs(robot: Robot, scene, n: int, rng: np.random.Generator, margin: float = 0.02, batch: int = 512) -> np.ndarray:
-    """n valid configurations, uniform within the joint limits, by rejection."""
+def sample_configs(
+    robot: Robot, scene, n: int, rng: np.random.Generator, margin: float = 0.02, batch: int = 512, around=None, spread: float = 1.0
+) -> np.ndarray:
+    """n valid configurations by rejection: uniform within the joint limits, or, with `around`,
+    uniform within +-spread/2 of each joint's range around that posture (clipped to the limits)."""
+    lo, hi = np.asarray(robot.lower), np.asarray(robot.upper)
+    if around is not None:
+        half = 0.5 * spread * (hi - lo)
+        lo, hi = np.maximum(lo, np.asarray(around) - half), np.minimum(hi, np.asarray(around) + half)
     out = []
     for _ in range(200):
-        qs = rng.uniform(robot.lower, robot.upper, (batch, robot.dof))
+        qs = rng.uniform(lo, hi, (batch, robot.dof))
         out.extend(qs[valid_configs(robot, scene, qs, margin)])
         if len(out) >= n:
             return np.asarray(out[:n])
@@ -76,14 +82,16 @@ def demo_problem(robot: Robot) -> Problem:
     return make_problem(robot, ready, scene, goal_q=goal, name="demo_shelf", kind="shelf")
 
 
-def random_problems(robot: Robot, scene_dicts: list[dict], seed: int, goal: str = "joint", frame: str = "panda_hand") -> list[Problem]:
-    """One problem per scene: valid start and goal configurations by rejection sampling
-    (pose goals are the goal configuration's `frame` pose)."""
+def random_problems(
+    robot: Robot, scene_dicts: list[dict], seed: int, goal: str = "joint", frame: str = "panda_hand", around=None, spread: float = 1.0
+) -> list[Problem]:
+    """One problem per scene: valid start and goal configurations by rejection sampling (see
+    `sample_configs` for `around`/`spread`); pose goals are the goal configuration's `frame` pose."""
     rng = np.random.default_rng(seed)
     out = []
     for k, sd in enumerate(scene_dicts):
         scene = from_dict(sd)
-        start, target = sample_configs(robot, scene, 2, rng)
+        start, target = sample_configs(robot, scene, 2, rng, around=around, spread=spread)
         if goal == "joint":
             out.append(make_problem(robot, start, scene, goal_q=target, name=f"random_{seed}_{k}", kind="random"))
         else:
@@ -93,16 +101,19 @@ def random_problems(robot: Robot, scene_dicts: list[dict], seed: int, goal: str 
     return out
 
 
-def flying_cuboids(rng: np.random.Generator, n: int = (6, 10), r_min: float = 0.35, r_max: float = 1.0) -> dict:
-    """Thesis §3.4.1.2 'flying cuboids': boxes of random size and orientation around the robot."""
+def flying_cuboids(rng: np.random.Generator, n: int = (6, 10), r_min: float = 0.35, r_max: float = 1.0, keep_out: float = 0.3) -> dict:
+    """Thesis §3.4.1.2 'flying cuboids': boxes of random size and orientation around the robot;
+    boxes that reach within `keep_out` of the base's vertical axis below 0.9 m (the shoulder) are dropped."""
     count = rng.integers(*n, endpoint=True)
     obs = []
-    for _ in range(count):
+    while len(obs) < count:
         d = rng.normal(size=3)
         d[2] = abs(d[2])
         d /= np.linalg.norm(d)
         center = d * rng.uniform(r_min, r_max)
         q = rng.normal(size=4)
-        obs.append({"type": "cuboid", "center": center.tolist(), "quat_wxyz": (q / np.linalg.norm(q)).tolist(), "size": rng.uniform(0.05, 0.25, 3).tolist()})
+        size = rng.uniform(0.05, 0.25, 3)
+        if np.linalg.norm(center[:2]) - 0.5 * np.linalg.norm(size) < keep_out and center[2] < 0.9:
+            continue
+        obs.append({"type": "cuboid", "center": center.tolist(), "quat_wxyz": (q / np.linalg.norm(q)).tolist(), "size": size.tolist()})
     return {"obstacles": obs}
-

@@ -10,7 +10,6 @@ import dataclasses
 import math
 from typing import Any
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -79,9 +78,7 @@ def validate(robot: Robot, p: Problem, collision_margin: float = 0.0) -> None:
             raise ValueError(f"{p.name}.{field}[{j}] = {q[j]:.4f} is outside the joint limits [{lo[j]:.4f}, {hi[j]:.4f}] of {robot.joint_names[j]}")
     if p.goal_pose is not None and not math.isclose(float(np.linalg.norm(p.goal_pose[1])), 1.0, abs_tol=1e-3):
         raise ValueError(f"{p.name}.goal_pose.quat_wxyz must be a unit quaternion, got {p.goal_pose[1].tolist()}")
-    clearance = float(
-        jnp.min(distance(p.scene, sphere_centers(robot, jnp.asarray(p.start_q, jnp.float32))) - robot.sphere_radius, initial=np.inf)
-    )
+    clearance = float(jnp.min(distance(p.scene, sphere_centers(robot, jnp.asarray(p.start_q, jnp.float32))) - robot.sphere_radius, initial=np.inf))
     if clearance < -collision_margin:
         raise ValueError(f"{p.name}.start_q is in collision with the scene (penetration {-clearance * 1000:.1f} mm)")
 
@@ -100,4 +97,3 @@ def batch(problems: list[Problem]) -> dict[str, Any]:
         "joint_goal": jnp.asarray([p.goal_q is not None for p in problems]),
         "scene": stack([p.scene for p in problems]),
     }
-

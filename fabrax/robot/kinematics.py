@@ -98,9 +98,7 @@ def point_kinematics(robot, q, qd, frame, local) -> PointKinematics:
     arm = x[:, None, :] - o[:, :, None]  # (3, n, N)
     jac = jnp.where(moves, jnp.where(rev[None, :, None], cross0(z[:, :, None], arm), z[:, :, None]), 0.0)
     xd = sum(jac[:, i] * qd[i] for i in range(jac.shape[1]))
-    jdot = jnp.where(
-        rev[None, :, None], cross0(wz[:, :, None], arm) + cross0(z[:, :, None], xd[:, None, :] - od[:, :, None]), wz[:, :, None]
-    )
+    jdot = jnp.where(rev[None, :, None], cross0(wz[:, :, None], arm) + cross0(z[:, :, None], xd[:, None, :] - od[:, :, None]), wz[:, :, None])
     jdqd = sum(jnp.where(moves[0, i], jdot[:, i] * qd[i], 0.0) for i in range(jac.shape[1]))
     return PointKinematics(x, jac, xd, jdqd)
 

@@ -15,7 +15,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from fabrax.robot import kinematics, spheres as sphere_lib
+from fabrax.robot import kinematics
+from fabrax.robot import spheres as sphere_lib
 from fabrax.robot.urdf import REVOLUTE, KinematicTree, parse_urdf
 
 

@@ -87,9 +87,7 @@ def _greedy_cover(dist: np.ndarray, radius: np.ndarray, tolerance: float) -> lis
     return chosen
 
 
-def fit_spheres(
-    tree: KinematicTree, budget: int, tolerance: float = 0.001, spacing: float = 0.004, seed: int = 0, max_samples: int = 2500
-) -> dict:
+def fit_spheres(tree: KinematicTree, budget: int, tolerance: float = 0.001, spacing: float = 0.004, seed: int = 0, max_samples: int = 2500) -> dict:
     """Fit at most `budget` spheres over all links with collision geometry.
 
     Sphere centres are interior points (offsets along inward surface normals);

@@ -225,4 +225,3 @@ def stack(scenes: Sequence[Scene]) -> Scene:
     cap = {k: max(s.capacity[k] for s in scenes) for k in scenes[0].capacity}
     padded = [s.pad(**cap) for s in scenes]
     return jax.tree.map(lambda *a: jnp.stack(a), *padded)
-
