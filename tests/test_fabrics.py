@@ -189,9 +189,8 @@ def test_no_nan_at_singular_states(fabric):
 
 
 def test_resolutions_agree_where_they_coincide(fabric, panda):
-    """With one obstacle the scene distance is that obstacle's; with one pair per group, groups are pairs."""
+    """With one obstacle the scene distance is that obstacle's; link self-collision is the closest pair of each link pair."""
     from fabrax.fabrics.terms import TermInputs, obstacle_repulsion, self_collision
-    from fabrax.robot import build_robot
 
     fab, params = fabric
     scene = sc.from_dict(BAR)
@@ -204,13 +203,19 @@ def test_resolutions_agree_where_they_coincide(fabric, panda):
     assert float(ca.clearance) < 0.25  # active
     for f in ("M", "f_geom", "f_energy", "f_force"):
         assert jnp.allclose(getattr(ca, f), getattr(cb, f), rtol=1e-4, atol=1e-5), f
-    cfg = config.load("robot", "panda")
-    cfg["self_collision"]["group_width"] = 1
-    ungrouped = build_robot(cfg)
-    kin = point_kinematics(ungrouped, q, qd, ungrouped.sphere_frame, ungrouped.sphere_local)
-    inputs = TermInputs(q, qd, kin, scene, ungrouped)
+    # link resolution = the sphere resolution over each link pair's closest sphere pair
+    x = np.asarray(kin.x)
+    i, j = np.asarray(panda.pair_i), np.asarray(panda.pair_j)
+    r = np.asarray(panda.sphere_radius)
+    gap = np.linalg.norm(x[:, i] - x[:, j], axis=0) - r[i] - r[j]
+    link = np.asarray(panda.sphere_link)
+    key = link[i] * 100 + link[j]
+    closest = np.asarray([np.nonzero(key == k)[0][np.argmin(gap[key == k])] for k in np.unique(key)])
+    reduced = panda.replace(pair_i=jnp.asarray(i[closest]), pair_j=jnp.asarray(j[closest]))
     s1, s2 = self_collision(resolution="link"), self_collision(resolution="sphere")
-    c1, c2 = s1.apply(s1.init(), inputs), s2.apply(s2.init(), inputs)
+    c1 = s1.apply(s1.init(), inputs)
+    c2 = s2.apply(s2.init(), TermInputs(q, qd, kin, scene, reduced))
+    assert float(c1.clearance) < 0.15  # active
     for f in ("M", "f_geom", "f_energy", "f_force"):
         assert jnp.allclose(getattr(c1, f), getattr(c2, f), rtol=1e-4, atol=1e-5), f
     with pytest.raises(ValueError, match="resolution"):

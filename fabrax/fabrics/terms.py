@@ -370,9 +370,9 @@ def obstacle_repulsion(name: str = "obstacles", resolution: str = "scene", **ove
 def self_collision(name: str = "self_collision", resolution: str = "link", **overrides) -> Term:
     """Repulsion between the robot's own links (thesis §3.3.3), x = |p_i - p_j| - r_i - r_j.
 
-    resolution="link": one distance per group of checked sphere pairs of one
-    pair of links (at most `robot.pair_groups.shape[1]` pairs a group; the
-    group's closest pair); "sphere": every checked sphere pair. Each distance
+    resolution="link": one distance per pair of links, the thesis' link-to-link
+    distance, measured by their closest checked sphere pair (found chunk by
+    chunk); "sphere": every checked sphere pair. Each distance
     pulls back through both spheres: u = J_i^T n - J_j^T n, M = sum m u u^T.
     """
     _check_resolution(resolution, name)
@@ -384,8 +384,12 @@ def self_collision(name: str = "self_collision", resolution: str = "link", **ove
         if resolution == "link":
             rel = kin.x[:, i] - kin.x[:, j]
             gap = jnp.sqrt(dot0(rel, rel)) - robot.sphere_radius[i] - robot.sphere_radius[j]
+            # closest pair of each chunk, then closest chunk of each pair of links
             grouped = jnp.where(robot.pair_groups_mask, gap[robot.pair_groups], FAR)
-            best = jnp.take_along_axis(robot.pair_groups, argmin_packed(grouped, span=4.0)[:, None], -1)[:, 0]
+            slot = argmin_packed(grouped)
+            best = jnp.take_along_axis(robot.pair_groups, slot[:, None], -1)[:, 0]
+            chunk_gap = jnp.where(robot.link_pair_groups_mask, jnp.take_along_axis(grouped, slot[:, None], -1)[:, 0][robot.link_pair_groups], FAR)
+            best = best[jnp.take_along_axis(robot.link_pair_groups, argmin_packed(chunk_gap)[:, None], -1)[:, 0]]
             i, j = i[best], j[best]
         rel, reld = kin.x[:, i] - kin.x[:, j], kin.xd[:, i] - kin.xd[:, j]  # (3, P)
         dist = jnp.sqrt(dot0(rel, rel) + 1e-18)

@@ -53,6 +53,8 @@ class Robot:
     link_spheres_mask: jax.Array  # (Ls, S)
     pair_groups: jax.Array  # (G, Q) indices into pair_i/pair_j: pairs of one pair of links, at most Q per row, padded
     pair_groups_mask: jax.Array  # (G, Q)
+    link_pair_groups: jax.Array  # (LP, C) rows of pair_groups that belong to one pair of links, padded
+    link_pair_groups_mask: jax.Array  # (LP, C)
 
     @property
     def dof(self) -> int:
@@ -253,6 +255,8 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
         link_spheres_mask=jnp.zeros((0, 0), bool),
         pair_groups=jnp.zeros((0, 0), jnp.int32),
         pair_groups_mask=jnp.zeros((0, 0), bool),
+        link_pair_groups=jnp.zeros((0, 0), jnp.int32),
+        link_pair_groups_mask=jnp.zeros((0, 0), bool),
     )
     sc = dict(cfg.get("self_collision") or {})
     reference = np.asarray(sc.get("reference_q", cfg.get("default_q")) or np.zeros((0, n)), dtype=np.float64).reshape(-1, n)
@@ -272,8 +276,15 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
     links, link_mask = _groups([np.nonzero(s_link == k)[0] for k in range(len(link_names))])
     key = s_link[pi] * len(link_names) + s_link[pj]
     width = int(sc.get("group_width", 16))
-    chunks = [m[c : c + width] for k in np.unique(key) for m in [np.nonzero(key == k)[0]] for c in range(0, len(m), width)]
+    chunks, owner = [], []
+    for k in np.unique(key):
+        members = np.nonzero(key == k)[0]
+        for c in range(0, len(members), width):
+            chunks.append(members[c : c + width])
+            owner.append(k)
     groups, group_mask = _groups(chunks)
+    owner = np.asarray(owner)
+    link_groups, link_group_mask = _groups([np.nonzero(owner == k)[0] for k in np.unique(owner)])
     return robot.replace(
         pair_i=jnp.asarray(pi),
         pair_j=jnp.asarray(pj),
@@ -281,6 +292,8 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
         link_spheres_mask=jnp.asarray(link_mask),
         pair_groups=jnp.asarray(groups),
         pair_groups_mask=jnp.asarray(group_mask),
+        link_pair_groups=jnp.asarray(link_groups),
+        link_pair_groups_mask=jnp.asarray(link_group_mask),
     )
 
 

@@ -134,19 +134,22 @@ def distance_kinematics(scene: Scene, x: jax.Array, xd: jax.Array) -> PairDistan
     return PairDistances(jnp.where(live, d, FAR), n * live[None], rate * live, curv * live, mask)
 
 
-def argmin_packed(values: jax.Array, span: float = 8.0) -> jax.Array:
-    """Index of the smallest value along the last axis (ties within 1 um: the first).
+def argmin_packed(values: jax.Array, offset: float = 2.0) -> jax.Array:
+    """Index of the smallest value along the last axis, for values > -offset (ties: the first).
 
-    One integer min-reduction over keys that pack the value (quantised to 1 um,
-    clipped to [-1, span - 1]) above the index: XLA vectorises a plain min but
-    runs an argmin's (value, index) reduction as scalar code.
+    The bits of the positive floats `values + offset` order like integers; their
+    lowest bits are replaced by the index and one integer min-reduction finds
+    both (XLA vectorises a plain min but runs an argmin's (value, index)
+    reduction as scalar code). Values closer than ~2^-(23 - index bits)
+    relative are ties.
     """
     width = values.shape[-1]
     bits = max(1, int(width - 1).bit_length())
-    if span * 1e6 * (1 << bits) >= 2**31:
-        raise ValueError(f"too many entries ({width}) to pack with span {span}")
-    level = jnp.round((jnp.clip(values, -1.0, span - 1.0) + 1.0) * 1e6).astype(jnp.int32)
-    return jnp.min(level * (1 << bits) + jnp.arange(width, dtype=jnp.int32), axis=-1) & ((1 << bits) - 1)
+    if bits > 12:
+        raise ValueError(f"too many entries ({width}) to pack an index into a float32 mantissa")
+    raw = jax.lax.bitcast_convert_type(jnp.maximum(values + offset, 1e-30).astype(jnp.float32), jnp.int32)
+    key = (raw & ~((1 << bits) - 1)) | jnp.arange(width, dtype=jnp.int32)
+    return jnp.min(key, axis=-1) & ((1 << bits) - 1)
 
 
 class NearestDistance(NamedTuple):
