@@ -31,14 +31,16 @@ from fabrax.rollout import reach
 
 # (term, parameter): (low, high), sampled log-uniformly
 SPACE = {
-    ("goal", "k_force"): (0.8, 3.0),
+    ("goal", "k_force"): (0.8, 6.0),
     ("goal", "b_goal"): (3.0, 12.0),
+    ("goal", "k_geometry"): (0.05, 2.0),
+    ("obstacles", "reach"): (0.08, 0.4),
     ("ee", "k_force"): (1.0, 6.0),
     ("ee", "alpha_force"): (3.0, 12.0),
     ("ee", "b_goal"): (3.0, 15.0),
     ("posture", "k_force"): (0.01, 0.3),
     ("damping", "b"): (0.1, 2.0),
-    ("obstacles", "k_metric"): (0.1, 2.0),
+    ("obstacles", "k_metric"): (0.02, 2.0),
     ("obstacles", "k_barrier"): (0.05, 0.5),
     ("damping", "k_drag"): (1.0, 10.0),
 }
@@ -61,6 +63,15 @@ def problem_set(robot, n: int, seed: int):
     # starts and goals around the ready posture (half of each joint's range), as in MPiNets-style data
     near = dict(around=config.load("robot", "panda")["default_q"], spread=0.5)
     return random_problems(robot, scenes[:half], seed, goal="joint", **near) + random_problems(robot, scenes[half:], seed + 1, goal="pose", **near)
+
+
+def mbm_train_set(robot, per_class: int):
+    """MotionBenchMaker problems 1..per_class of each class (train split; never the test split 51-100)."""
+    from fabrax.problems.mbm import CLASSES, load_mbm
+
+    if per_class > 50:
+        raise ValueError("the MBM train split has 50 problems per class")
+    return [p for p in load_mbm(robot, None, CLASSES, "train", per_class) if p.valid]
 
 
 def evaluate(robot, cfg, problems, dt=0.01, t_max=7.0):
@@ -99,11 +110,12 @@ def main() -> None:
     ap.add_argument("--candidates", type=int, default=24)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default="bench_out/tune")
+    ap.add_argument("--set", default="generated", choices=["generated", "mbm-train"], help="mbm-train: --problems per class of the MBM train split")
     args = ap.parse_args()
 
-    robot = config.load_robot()
+    robot = config.load_robot("panda_mbm" if args.set == "mbm-train" else "panda")
     base = config.load("fabric", "panda")
-    problems = problem_set(robot, args.problems, args.seed)
+    problems = problem_set(robot, args.problems, args.seed) if args.set == "generated" else mbm_train_set(robot, args.problems)
     rng = np.random.default_rng(args.seed + 100)
     rows = []
     current = {k: base["terms"][k[0]][k[1]] for k in SPACE}

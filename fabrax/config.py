@@ -18,13 +18,22 @@ def config_dir() -> Path:
     return path
 
 
-def load(group: str, name: str) -> dict[str, Any]:
-    """One config of a group (e.g. load('robot', 'panda')) as a plain dict, interpolations resolved."""
+def _load_node(group: str, name: str):
     path = config_dir() / group / f"{name}.yaml"
     if not path.exists():
         options = sorted(p.stem for p in (config_dir() / group).glob("*.yaml"))
         raise ValueError(f"no config '{name}' in group '{group}' (options: {', '.join(options)})")
-    return OmegaConf.to_container(OmegaConf.load(path), resolve=True)
+    node = OmegaConf.load(path)
+    defaults = node.pop("defaults", [])
+    # a hydra defaults list of configs in the same group, then this file (`_self_`)
+    parts = [_load_node(group, d) for d in defaults if d != "_self_"]
+    return OmegaConf.merge(*parts, node) if parts else node
+
+
+def load(group: str, name: str) -> dict[str, Any]:
+    """One config of a group (e.g. load('robot', 'panda')) as a plain dict, its defaults list merged
+    and interpolations resolved."""
+    return OmegaConf.to_container(_load_node(group, name), resolve=True)
 
 
 def load_robot(name: str = "panda"):

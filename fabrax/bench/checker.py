@@ -11,14 +11,12 @@ from __future__ import annotations
 
 import dataclasses
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fabrax.robot.kinematics import sphere_centers
+from fabrax.problems.clearance import state_clearances
 from fabrax.robot.robot import Robot
 from fabrax.scene import Scene
-from fabrax.scene.sdf import distance
 
 RESOLUTION = 1.0 / 32.0  # rad between checked states
 _CHUNK = 512  # states per jitted call (one compiled shape)
@@ -34,20 +32,6 @@ class CheckResult:
     min_self_clearance: float
     first_collision: int  # index of the first colliding input state segment, -1 if none
     checked_states: int
-
-
-@jax.jit
-def state_clearances(robot: Robot, scene: Scene, qs: jax.Array):
-    """Per state: smallest sphere-scene distance, smallest self-pair distance, within joint limits."""
-
-    def one(q):
-        x = sphere_centers(robot, q)
-        env = jnp.min(distance(scene, x) - robot.sphere_radius, initial=jnp.inf)
-        i, j = robot.pair_i, robot.pair_j
-        gap = jnp.linalg.norm(x[i] - x[j], axis=-1) - robot.sphere_radius[i] - robot.sphere_radius[j]
-        return env, jnp.min(gap, initial=jnp.inf), robot.within_limits(q, 1e-6)
-
-    return jax.vmap(one)(qs)
 
 
 def densify(q: np.ndarray, resolution: float = RESOLUTION) -> tuple[np.ndarray, np.ndarray]:

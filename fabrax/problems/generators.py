@@ -5,7 +5,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from fabrax.bench.checker import state_clearances
+from fabrax.problems.clearance import state_clearances
 from fabrax.problems.problem import Problem, make_problem
 from fabrax.robot.ik import solve_ik
 from fabrax.robot.kinematics import frame_pose

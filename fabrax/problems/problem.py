@@ -13,10 +13,9 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from fabrax.robot.kinematics import sphere_centers
+from fabrax.problems.clearance import state_clearances
 from fabrax.robot.robot import Robot
 from fabrax.scene import Scene, from_dict, stack
-from fabrax.scene.sdf import distance
 
 
 @dataclasses.dataclass
@@ -28,6 +27,8 @@ class Problem:
     name: str = "problem"
     kind: str = "custom"  # problem class, e.g. "bookshelf_small"
     start_qd: np.ndarray | None = None
+    valid: bool = True  # False when loaded data fails `validate`; `reason` says why
+    reason: str = ""
 
     @property
     def goal_type(self) -> str:
@@ -65,7 +66,8 @@ def make_problem(robot: Robot, start_q, scene: Scene | dict, goal_q=None, goal_p
 
 
 def validate(robot: Robot, p: Problem, collision_margin: float = 0.0) -> None:
-    """Raise ValueError naming the field if the problem is malformed, outside limits or starts in collision."""
+    """Raise ValueError naming the field if the problem is malformed, outside the joint limits, or
+    starts (or has its joint goal) in collision with the scene or itself."""
     lo, hi = np.asarray(robot.lower), np.asarray(robot.upper)
     if p.goal_q is None and p.goal_pose is None:
         raise ValueError(f"{p.name}: needs goal_q or goal_pose")
@@ -78,9 +80,24 @@ def validate(robot: Robot, p: Problem, collision_margin: float = 0.0) -> None:
             raise ValueError(f"{p.name}.{field}[{j}] = {q[j]:.4f} is outside the joint limits [{lo[j]:.4f}, {hi[j]:.4f}] of {robot.joint_names[j]}")
     if p.goal_pose is not None and not math.isclose(float(np.linalg.norm(p.goal_pose[1])), 1.0, abs_tol=1e-3):
         raise ValueError(f"{p.name}.goal_pose.quat_wxyz must be a unit quaternion, got {p.goal_pose[1].tolist()}")
-    clearance = float(jnp.min(distance(p.scene, sphere_centers(robot, jnp.asarray(p.start_q, jnp.float32))) - robot.sphere_radius, initial=np.inf))
-    if clearance < -collision_margin:
-        raise ValueError(f"{p.name}.start_q is in collision with the scene (penetration {-clearance * 1000:.1f} mm)")
+    checks = [("start_q", p.start_q)] + ([("goal_q", p.goal_q)] if p.goal_q is not None else [])
+    env, slf, _ = state_clearances(robot, p.scene, jnp.asarray(np.stack([q for _, q in checks]), jnp.float32))
+    for (field, _), e, s in zip(checks, np.asarray(env), np.asarray(slf), strict=True):
+        if e < -collision_margin:
+            raise ValueError(f"{p.name}.{field} is in collision with the scene (penetration {-e * 1000:.1f} mm)")
+        if s < -collision_margin:
+            raise ValueError(f"{p.name}.{field} is in self-collision (penetration {-s * 1000:.1f} mm)")
+
+
+def flag(robot: Robot, p: Problem, collision_margin: float = 0.0) -> Problem:
+    """`validate` without raising: sets `p.valid` and `p.reason` (for data sets, where a bad
+    problem is reported, never dropped)."""
+    try:
+        validate(robot, p, collision_margin)
+        p.valid, p.reason = True, ""
+    except ValueError as e:
+        p.valid, p.reason = False, str(e)
+    return p
 
 
 def batch(problems: list[Problem]) -> dict[str, Any]:

@@ -1,0 +1,96 @@
+"""`fabrax bench key=value ...`: run one method on one problem set (configs/bench.yaml, hydra overrides).
+
+fabrax bench method=gf problems=mbm classes=[box] split=test limit=5 out=bench_out/gf seed=0
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+from fabrax import config
+
+
+def compose(overrides: list[str]):
+    """The bench config with command-line overrides (unknown keys fail with hydra's error)."""
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+    from hydra.errors import HydraException
+    from omegaconf import OmegaConf
+
+    try:
+        with initialize_config_dir(config_dir=str(config.config_dir()), version_base=None):
+            cfg = hydra_compose("bench", overrides=overrides)
+    except HydraException as e:
+        raise SystemExit(f"fabrax bench: {e}") from None
+    return OmegaConf.to_container(cfg, resolve=True)
+
+
+def load_problems(cfg: dict, robot) -> list:
+    kind = cfg["problems"]
+    if kind == "mbm":
+        from fabrax.problems.mbm import load_mbm
+
+        return load_mbm(robot, cfg["data_dir"], cfg["classes"], cfg["split"], cfg["limit"])
+    if kind in ("mbm_like", "mpinets_like"):
+        from fabrax.problems import procedural
+
+        n = cfg["limit"] or 100
+        seed = cfg["seed"] + (0 if cfg["split"] != "train" else 10_000)
+        return procedural.generate(robot, kind, cfg["classes"], n, seed)
+    raise SystemExit(f"fabrax bench: problems must be mbm, mbm_like or mpinets_like, got '{kind}'")
+
+
+def make_method(cfg: dict, robot):
+    from fabrax.bench.methods import FabricMethod, OMPLMethod
+
+    m = dict(cfg["method"])
+    kind = m.pop("type")
+    if kind == "fabric":
+        fabric, params = config.load_fabric(robot, cfg["fabric"])
+        return FabricMethod(fabric, params, dt=cfg["dt"], t_max=cfg["t_max"], **m)
+    if kind == "ompl":
+        return OMPLMethod(dt=cfg["dt"], **m)
+    raise SystemExit(f"fabrax bench: unknown method type '{kind}'")
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in ("-h", "--help"):
+        print(__doc__)
+        return 0
+    cfg = compose(argv)
+    import jax
+
+    from fabrax.bench.metrics import Goal
+    from fabrax.bench.runner import run, summary_table, write
+
+    robot_name = cfg["robot"] or ("panda_mbm" if cfg["problems"] == "mbm" else "panda")
+    robot = config.load_robot(robot_name)
+    problems = load_problems(cfg, robot)
+    method = make_method(cfg, robot)
+    t0 = time.perf_counter()
+    rows = run(method, robot, problems, goal=Goal(**cfg["goal"]), margin=cfg["margin"], frame=cfg["frame"], progress=cfg["progress"])
+    out = Path(cfg["out"])
+    meta = {
+        "config": cfg,
+        "robot": robot_name,
+        "wall_s": time.perf_counter() - t0,
+        "versions": {"python": platform.python_version(), "jax": jax.__version__},
+        "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
+        "argv": argv,
+    }
+    write(rows, out, meta)
+    print(summary_table(rows))
+    print(f"results: {out / 'results.json'}")
+    sys.stdout.flush()
+    if "ompl" in sys.modules:
+        os._exit(0)  # OMPL 1.7.0's Python module crashes while the interpreter shuts down
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,111 @@
+"""The method protocol and the built-in methods: the pure geometric fabric and OMPL planners.
+
+A method takes a robot and a list of problems and returns one `Solution` per
+problem: a joint trajectory sampled every `dt`, the wall time it took to
+produce (compilation excluded, reported apart) and free-form info. Methods
+that batch (fabrics) solve many problems in one `vmap`; their per-problem
+time is the batch's wall time divided by its size.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Any, Protocol
+
+import jax
+import numpy as np
+
+from fabrax.problems.problem import Problem, batch
+from fabrax.robot.robot import Robot
+
+
+@dataclasses.dataclass
+class Solution:
+    q: np.ndarray  # (T, n) trajectory
+    dt: float
+    plan_time_s: float
+    compile_s: float = 0.0
+    info: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+
+class Method(Protocol):
+    name: str
+
+    def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]: ...
+
+
+@dataclasses.dataclass
+class FabricMethod:
+    """`gf`: the fabric aimed straight at the goal (joint attractor for joint goals, pose attractor
+    for pose goals), rolled out for at most t_max at dt (gfcs_paper: 7 s at 0.01 s)."""
+
+    fabric: Any
+    params: Any
+    name: str = "gf"
+    dt: float = 0.01
+    t_max: float = 7.0
+    batch_size: int = 64
+
+    def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]:
+        from fabrax.rollout import reach
+
+        steps = int(round(self.t_max / self.dt))
+        run = jax.jit(lambda b: reach(self.fabric, self.params, b, dt=self.dt, steps=steps))
+        out: list[Solution] = []
+        compiled = {}
+        for start in range(0, len(problems), self.batch_size):
+            chunk = problems[start : start + self.batch_size]
+            pad = self.batch_size - len(chunk) if len(problems) > self.batch_size else 0
+            b = batch(chunk + [chunk[-1]] * pad)
+            shapes = jax.tree.map(lambda a: a.shape, b)
+            key = str(shapes)
+            compile_s = 0.0
+            if key not in compiled:
+                t0 = time.perf_counter()
+                compiled[key] = run.lower(b).compile()
+                compile_s = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            tr = jax.block_until_ready(compiled[key](b))
+            per = (time.perf_counter() - t0) / len(chunk)
+            q, length = np.asarray(tr.q), np.asarray(tr.length)
+            for k in range(len(chunk)):
+                out.append(
+                    Solution(
+                        q[k, : length[k]],
+                        self.dt,
+                        per,
+                        compile_s if k == 0 else 0.0,
+                        {"fabric_reached": bool(tr.reached[k]), "t_goal": float(tr.t_goal[k]), "batch": len(chunk)},
+                    )
+                )
+        return out
+
+
+@dataclasses.dataclass
+class OMPLMethod:
+    """An OMPL planner (RRTConnect, BITstar, BiEST, AITstar, ...) on the joint space, state and motion
+    validity from the same sphere checker (a motion validator checks each edge's interpolated
+    states in one batched call), path simplification, then rest-to-rest retiming (`retime`).
+    Planning time is solve plus simplification; compiling the checker is reported apart."""
+
+    planner: str = "RRTConnect"
+    budget_s: float = 1.2
+    simplify: bool = True
+    name: str = "rrtconnect"
+    dt: float = 0.01
+    resolution: float = 1.0 / 32.0
+
+    def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]:
+        from fabrax.bench.ompl import plan
+        from fabrax.bench.retime import retime
+
+        out = []
+        for p in problems:
+            path, info = plan(robot, p, self.planner, self.budget_s, self.simplify, self.resolution)
+            elapsed = info["solve_s"] + info["simplify_s"]
+            if path is None:
+                out.append(Solution(p.start_q[None], self.dt, elapsed, info["compile_s"], info))
+                continue
+            out.append(Solution(retime(robot, path, self.dt), self.dt, elapsed, info["compile_s"], {**info, "waypoints": len(path)}))
+        return out

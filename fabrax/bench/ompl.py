@@ -1,0 +1,126 @@
+"""OMPL baselines (optional: `pip install -e ".[bench]"`, which pins `ompl==1.7.0`).
+
+Planners run on the joint space with the benchmark's own checker: a state is
+valid when its collision spheres clear the scene and each other and it is
+within the joint limits; a motion validator checks every edge at the checker's
+resolution in one batched, jitted call. OMPL 1.7.0's Python module crashes
+while the interpreter shuts down, so programs that load it end with
+`os._exit` (see `fabrax.bench.cli`).
+"""
+
+from __future__ import annotations
+
+import time
+
+import jax.numpy as jnp
+import numpy as np
+
+from fabrax.bench.checker import densify
+from fabrax.problems.clearance import state_clearances
+from fabrax.problems.problem import Problem
+from fabrax.robot.robot import Robot
+
+PLANNERS = ("RRTConnect", "BITstar", "BiEST", "AITstar", "RRTstar", "PRM")
+
+
+def available() -> tuple[str, ...]:
+    """The planners the installed OMPL binds (empty if OMPL is not installed)."""
+    try:
+        from ompl import geometric as og
+    except ImportError:
+        return ()
+    return tuple(p for p in PLANNERS if hasattr(og, p))
+
+
+BUCKETS = tuple(1 << k for k in range(10))  # batch sizes of validity calls (1 ... 512 states)
+CAPACITY = {"cuboids": 32, "cylinders": 16, "spheres": 8, "points": 0}  # one compiled shape for every scene
+
+
+class _Checker:
+    """Batched validity of joint configurations; batch sizes are padded to powers of two and scenes
+    to one capacity, so that every call reuses a compiled function."""
+
+    def __init__(self, robot: Robot, problem: Problem, resolution: float):
+        cap = {k: max(v, problem.scene.capacity[k]) for k, v in CAPACITY.items()}
+        self.robot, self.scene, self.resolution = robot, problem.scene.pad(**cap), resolution
+        self.calls = 0
+
+    def warm_up(self) -> None:
+        """Compile every batch size before the planner's clock starts."""
+        for b in BUCKETS:
+            np.asarray(state_clearances(self.robot, self.scene, jnp.zeros((b, self.robot.dof), jnp.float32))[0])
+
+    def valid(self, qs: np.ndarray) -> np.ndarray:
+        self.calls += 1
+        n = len(qs)
+        size = max(1 << max(int(n - 1).bit_length(), 0), 1)
+        if size > BUCKETS[-1]:
+            return np.concatenate([self.valid(qs[k : k + BUCKETS[-1]]) for k in range(0, n, BUCKETS[-1])])
+        padded = np.concatenate([qs, np.repeat(qs[-1:], size - n, 0)]) if size > n else qs
+        env, slf, ok = state_clearances(self.robot, self.scene, jnp.asarray(padded, jnp.float32))
+        return np.asarray((env >= 0.0) & (slf >= 0.0) & ok)[:n]
+
+    def motion(self, a: np.ndarray, b: np.ndarray) -> bool:
+        dense, _ = densify(np.stack([a, b]), self.resolution)
+        return bool(self.valid(dense).all())
+
+
+def plan(robot: Robot, problem: Problem, planner: str, budget_s: float, simplify: bool, resolution: float):
+    """A collision-free joint path (W, n) from start to the joint goal, or None; and info."""
+    from ompl import base as ob
+    from ompl import geometric as og
+    from ompl import util as ou
+
+    ou.setLogLevel(ou.LOG_ERROR)
+    if not hasattr(og, planner):
+        raise ValueError(
+            f"the installed OMPL does not bind planner '{planner}' (bound: {', '.join(available())}); ompl 1.7.0 binds all of {PLANNERS}"
+        )
+    if problem.goal_q is None:
+        raise ValueError(f"{problem.name}: OMPL baselines plan to joint goals; this problem has a pose goal")
+    n = robot.dof
+    space = ob.RealVectorStateSpace(n)
+    bounds = ob.RealVectorBounds(n)
+    for j in range(n):
+        bounds.setLow(j, float(robot.lower[j]))
+        bounds.setHigh(j, float(robot.upper[j]))
+    space.setBounds(bounds)
+    si = ob.SpaceInformation(space)
+    check = _Checker(robot, problem, resolution)
+    t0 = time.perf_counter()
+    check.warm_up()
+    compile_s = time.perf_counter() - t0
+    as_array = lambda s: np.array([s[j] for j in range(n)])  # noqa: E731
+    si.setStateValidityChecker(ob.StateValidityCheckerFn(lambda s: bool(check.valid(as_array(s)[None])[0])))
+
+    class Motion(ob.MotionValidator):
+        def checkMotion(self, s1, s2, *last_valid):
+            return check.motion(as_array(s1), as_array(s2))
+
+    motion = Motion(si)
+    si.setMotionValidator(motion)
+    si.setup()
+    start, goal = ob.State(space), ob.State(space)
+    q0, q1 = (np.clip(q, robot.lower, robot.upper) for q in (problem.start_q, problem.goal_q))  # validated to 1e-6
+    for j in range(n):
+        start[j] = float(q0[j])
+        goal[j] = float(q1[j])
+    pdef = ob.ProblemDefinition(si)
+    pdef.setStartAndGoalStates(start, goal)
+    pdef.setOptimizationObjective(ob.PathLengthOptimizationObjective(si))
+    p = getattr(og, planner)(si)
+    p.setProblemDefinition(pdef)
+    p.setup()
+    t0 = time.perf_counter()
+    status = p.solve(budget_s)
+    solve_s = time.perf_counter() - t0
+    info = {"planner": planner, "status": str(status), "solve_s": solve_s, "simplify_s": 0.0, "compile_s": compile_s}
+    if not pdef.hasExactSolution():
+        return None, {**info, "validity_calls": check.calls}
+    path = pdef.getSolutionPath()
+    if simplify:
+        t0 = time.perf_counter()
+        og.PathSimplifier(si).simplifyMax(path)
+        info["simplify_s"] = time.perf_counter() - t0
+    waypoints = np.array([as_array(path.getState(i)) for i in range(path.getStateCount())])
+    return waypoints, {**info, "validity_calls": check.calls}

@@ -1,0 +1,126 @@
+"""Run a method on problems, judge every result with the same checker and metrics, write reports.
+
+Outputs in the run directory: `results.json` (one row per problem: `problem`,
+`class`, `method`, `valid_problem`, the metrics of `metrics.evaluate`,
+`plan_time_s`, `compile_s`), `summary.md` (per class, like gfcs_paper Table I)
+and PNG plots (success per class, end-effector path lengths).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from fabrax.bench.methods import Method
+from fabrax.bench.metrics import Goal, evaluate
+from fabrax.problems.problem import Problem
+from fabrax.robot.robot import Robot
+
+METRICS = ("ee_length", "cspace_length", "ee_ldj", "cspace_ldj", "plan_time_s", "duration_s")
+
+
+def run(
+    method: Method,
+    robot: Robot,
+    problems: list[Problem],
+    *,
+    goal: Goal = Goal(),
+    margin: float = 0.0,
+    frame: str = "panda_hand",
+    progress: bool = True,
+) -> list[dict]:
+    """Rows of metrics, one per problem; invalid problems are reported (valid_problem false), not run."""
+    valid = [p for p in problems if p.valid]
+    chunk = getattr(method, "batch_size", 1)
+    solutions = {}
+    with tqdm(total=len(valid), desc=method.name, disable=not progress, unit="problem") as bar:
+        for start in range(0, len(valid), chunk):
+            part = valid[start : start + chunk]
+            for p, s in zip(part, method.solve(robot, part), strict=True):
+                solutions[p.name] = s
+            bar.update(len(part))
+    rows = []
+    for p in problems:
+        row = {"problem": p.name, "class": p.kind, "method": method.name, "valid_problem": p.valid, "invalid_reason": p.reason}
+        if p.valid:
+            s = solutions[p.name]
+            row.update(evaluate(robot, p, s.q, s.dt, goal=goal, frame=frame, margin=margin))
+            row.update({"plan_time_s": s.plan_time_s, "compile_s": s.compile_s, "info": s.info})
+        rows.append(row)
+    return rows
+
+
+def _mean_std(values: list[float]) -> str:
+    v = np.asarray([x for x in values if x is not None and math.isfinite(x)])
+    return "–" if len(v) == 0 else f"{v.mean():.2f} ± {v.std():.2f}"
+
+
+def summary_table(rows: list[dict]) -> str:
+    """Markdown: per class and method, success and collision rates over valid problems, and the
+    mean ± std of every metric over the successful ones."""
+    keys = sorted({(r["method"], r["class"]) for r in rows})
+    head = "| method | class | valid | success % | collision % | " + " | ".join(METRICS) + " |"
+    lines = [head, "|" + "---|" * 2 + "---:|" * (3 + len(METRICS))]
+    for method, cls in keys:
+        sel = [r for r in rows if r["method"] == method and r["class"] == cls and r["valid_problem"]]
+        ok = [r for r in sel if r["success"]]
+        n = len(sel)
+        succ = 100.0 * len(ok) / n if n else float("nan")
+        coll = 100.0 * sum(r["collision"] for r in sel) / n if n else float("nan")
+        cells = [_mean_std([r[m] for r in ok]) for m in METRICS]
+        total = sum(1 for r in rows if r["method"] == method and r["class"] == cls)
+        lines.append(f"| {method} | {cls} | {n}/{total} | {succ:.0f} | {coll:.0f} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n\nMetrics are means ± std over successful problems; lengths in m (EE) and rad (C-space), times in s.\n"
+
+
+def write(rows: list[dict], out: Path, meta: dict | None = None) -> None:
+    """results.json, summary.md and plots in `out`."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "results.json").write_text(json.dumps({"meta": meta or {}, "rows": rows}, indent=1, default=_jsonable))
+    (out / "summary.md").write_text(summary_table(rows))
+    plots(rows, out)
+
+
+def _jsonable(x):
+    if isinstance(x, (np.floating, np.integer, np.bool_)):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    return str(x)
+
+
+def plots(rows: list[dict], out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    classes = sorted({r["class"] for r in rows})
+    methods = sorted({r["method"] for r in rows})
+    fig, ax = plt.subplots(figsize=(1.2 + 1.1 * len(classes), 3.2))
+    width = 0.8 / len(methods)
+    for k, m in enumerate(methods):
+        rates = []
+        for c in classes:
+            sel = [r for r in rows if r["method"] == m and r["class"] == c and r["valid_problem"]]
+            rates.append(100.0 * sum(r["success"] for r in sel) / len(sel) if sel else 0.0)
+        ax.bar(np.arange(len(classes)) + k * width, rates, width, label=m)
+    ax.set_xticks(np.arange(len(classes)) + 0.4 - width / 2, classes, rotation=30, ha="right")
+    ax.set_ylabel("success %")
+    ax.set_ylim(0, 100)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "success.png", dpi=120)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(1.2 + 1.1 * len(classes), 3.2))
+    data = [[r["ee_length"] for r in rows if r["class"] == c and r["valid_problem"] and r["success"]] or [np.nan] for c in classes]
+    ax.boxplot(data, tick_labels=classes)
+    ax.set_ylabel("end-effector path length (m)")
+    ax.tick_params(axis="x", rotation=30)
+    fig.tight_layout()
+    fig.savefig(out / "ee_length.png", dpi=120)
+    plt.close(fig)
