@@ -45,13 +45,17 @@ def load_problems(cfg: dict, robot) -> list:
 
 
 def make_method(cfg: dict, robot):
-    from fabrax.bench.methods import FabricMethod, OMPLMethod
+    from fabrax.bench.methods import FabricMethod, GFCSMethod, OMPLMethod
 
     m = dict(cfg["method"])
     kind = m.pop("type")
     if kind == "fabric":
         fabric, params = config.load_fabric(robot, cfg["fabric"])
         return FabricMethod(fabric, params, dt=cfg["dt"], t_max=cfg["t_max"], **m)
+    if kind == "gfcs":
+        fabric, params = config.load_fabric(robot, cfg["fabric"])
+        m["report"] = tuple(m.get("report", ()))
+        return GFCSMethod(fabric, params, dt=cfg["dt"], t_max=cfg["t_max"], seed=cfg["seed"], **m)
     if kind == "ompl":
         return OMPLMethod(dt=cfg["dt"], **m)
     raise SystemExit(f"fabrax bench: unknown method type '{kind}'")

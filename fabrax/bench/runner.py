@@ -45,12 +45,15 @@ def run(
             bar.update(len(part))
     rows = []
     for p in problems:
-        row = {"problem": p.name, "class": p.kind, "method": method.name, "valid_problem": p.valid, "invalid_reason": p.reason}
-        if p.valid:
-            s = solutions[p.name]
-            row.update(evaluate(robot, p, s.q, s.dt, goal=goal, frame=frame, margin=margin))
-            row.update({"plan_time_s": s.plan_time_s, "compile_s": s.compile_s, "info": s.info})
-        rows.append(row)
+        s = solutions.get(p.name)
+        # a method may also report intermediate results (e.g. GFCS after its first batch) as variants
+        named = {method.name: s, **(s.info.pop("variants", {}) if s is not None else {})}
+        for name, sol in sorted(named.items()):
+            row = {"problem": p.name, "class": p.kind, "method": name, "valid_problem": p.valid, "invalid_reason": p.reason}
+            if p.valid:
+                row.update(evaluate(robot, p, sol.q, sol.dt, goal=goal, frame=frame, margin=margin))
+                row.update({"plan_time_s": sol.plan_time_s, "compile_s": sol.compile_s, "info": sol.info})
+            rows.append(row)
     return rows
 
 

@@ -1,0 +1,1 @@
+"""Global planners built on the fabric."""
