@@ -61,3 +61,96 @@ def test_cma_es_best_so_far_improves(fabric_params):
     assert float(cost) == pytest.approx(r.best_cost, rel=1e-5)  # the reported cost is the candidate's cost
     with pytest.raises(ValueError, match="samples"):
         solve(fabric, params, _problem(goal), jax.random.PRNGKey(0), cfg, samples=jnp.zeros((3, 1, 7)))
+
+
+def _toy_data(n, key):
+    """Context x in R^4; the good target y in [0, 1]^2 is a fixed smooth function of x."""
+    x = jax.random.normal(key, (n, 4))
+    y = jax.nn.sigmoid(jnp.stack([x[:, 0] + x[:, 1], x[:, 2] - x[:, 3]], -1))
+    return x, y
+
+
+def test_energy_model_learns_and_ranks_positives_above_sgld_negatives():
+    """Trained with InfoNCE against SGLD negatives: on held-out contexts the loss against fixed SGLD
+    negatives (drawn from the untrained model) falls, positives rank below them in energy, and SGLD on
+    the trained model samples near the true targets (it has become a useful warm-start sampler)."""
+    import optax
+    from flax import nnx
+
+    from fabrax.planners.gfcs.ebm import EnergyModel, SGLDConfig, info_nce, sgld, train_step
+
+    model = EnergyModel(4, 2, hidden=64, layers=2, rngs=nnx.Rngs(0))
+    opt = nnx.Optimizer(model, optax.adam(3e-3), wrt=nnx.Param)
+    x, y = _toy_data(512, jax.random.PRNGKey(0))
+    xt, yt = _toy_data(64, jax.random.PRNGKey(7))  # held out
+    cfg = SGLDConfig(steps=10, step=0.01, noise=0.1)
+    draw = lambda m, k: jax.vmap(lambda xi, kk: sgld(m, xi, kk, 8, cfg))(xt, jax.random.split(k, 64))  # noqa: E731
+    fixed_neg = draw(model, jax.random.PRNGKey(8))
+    assert bool(jnp.all((fixed_neg >= 0) & (fixed_neg <= 1)))  # SGLD stays within the (normalised) limits
+    before = float(info_nce(model, xt, yt, fixed_neg))
+    for s in range(300):
+        idx = jax.random.choice(jax.random.PRNGKey(100 + s), 512, (64,), replace=False)
+        train_step(model, opt, x[idx], y[idx], jax.random.PRNGKey(s), 8, cfg)
+    after = float(info_nce(model, xt, yt, fixed_neg))
+    assert after < 0.5 * before
+    e_pos, e_neg = model(xt, yt), model(jnp.broadcast_to(xt[:, None], (64, 8, 4)), fixed_neg)
+    assert float(jnp.mean(e_pos[:, None] < e_neg)) > 0.9
+    samples = draw(model, jax.random.PRNGKey(9))
+    assert bool(jnp.all((samples >= 0) & (samples <= 1)))
+    err_learned = float(jnp.mean(jnp.linalg.norm(samples - yt[:, None], axis=-1)))
+    err_uniform = float(jnp.mean(jnp.linalg.norm(fixed_neg - yt[:, None], axis=-1)))
+    assert err_learned < 0.5 * err_uniform
+
+
+def test_learned_samples_lie_within_joint_limits(panda):
+    from fabrax.planners.gfcs.selfsup import SelfSupConfig, learned_samples, new_learner
+
+    cfg = SelfSupConfig(hidden=32, layers=2)
+    learner = new_learner(10, 14, cfg)
+    z = learned_samples(learner, panda, jnp.zeros(10), jax.random.PRNGKey(0), 16, 2, cfg)
+    q = to_commands(z, panda.lower, panda.upper)
+    assert z.shape == (16, 2, 7) and bool(jnp.all((q >= panda.lower) & (q <= panda.upper)))
+
+
+def test_problem_encoding(panda):
+    from fabrax.planners.gfcs.encoding import Encoding
+
+    enc = Encoding()
+    lattice = enc.lattice()
+    assert np.allclose(np.diff(np.unique(lattice[:, 0])), 0.15)
+    box = {"type": "cuboid", "center": [0.45, 0.0, 0.45], "size": [0.3, 0.3, 0.3]}
+    d = np.asarray(enc.scene_distances(from_dict({"obstacles": [box]})))
+    k = int(np.argmin(np.linalg.norm(lattice - [0.45, 0.0, 0.45], axis=1)))
+    assert d.shape == (len(lattice),) and d[k] < 0 and d.max() <= 1.0
+    far = int(np.argmax(np.linalg.norm(lattice - [0.45, 0.0, 0.45], axis=1)))
+    assert d[far] == pytest.approx(1.0)
+    x = enc.context(panda, jnp.asarray(READY), jnp.zeros(7), jnp.asarray(READY), from_dict({"obstacles": [box]}))
+    assert x.shape == (21 + len(lattice),) and bool(jnp.all(jnp.isfinite(x)))
+
+
+@pytest.mark.slow
+def test_self_supervised_run_checkpoints_and_resumes(tmp_path, panda, fabric_params):
+    from flax import nnx
+
+    from fabrax.planners.gfcs.selfsup import SelfSupConfig, load, run
+    from fabrax.problems import make_problem
+
+    fabric, params = fabric_params
+    goals = [READY + d for d in (np.array([0.4, 0, 0, 0, 0, 0, 0]), np.array([-0.3, 0.2, 0, 0.2, 0, 0, 0]))]
+    problems = [make_problem(panda, READY, {"obstacles": []}, goal_q=g, name=f"free{k}") for k, g in enumerate(goals)]
+    gcfg = GFCSConfig(population=4, batches=1, t_max=1.5)
+    cfg = SelfSupConfig(hidden=16, layers=2, retrain_every=2, passes=2, train_steps=3, batch=4, n_neg=2, buffer_size=6)
+    quiet = lambda *_: None  # noqa: E731
+    full = run(fabric, params, problems, gcfg, cfg, tmp_path / "full.msgpack", log=quiet)
+    part = tmp_path / "part.msgpack"
+    first = run(fabric, params, problems, gcfg, cfg, part, log=quiet, stop_after=3)  # "interrupted" after 3 solves
+    assert first.solved == 3 and load(part, first.contexts.shape[1], 7, cfg).solved == 3
+    resumed = run(fabric, params, problems, gcfg, cfg, part, log=quiet)
+    assert full.solved == resumed.solved == 4 and full.trained and len(full.targets) > 0
+    assert len(full.targets) <= cfg.buffer_size
+    assert np.array_equal(full.targets, resumed.targets) and np.array_equal(full.costs, resumed.costs)
+    leaves = lambda m: jax.tree.leaves(nnx.state(m, nnx.Param))  # noqa: E731
+    assert all(np.allclose(a, b) for a, b in zip(leaves(full.model), leaves(resumed.model), strict=True))
+    with pytest.raises(ValueError, match="cannot read GFCS checkpoint"):
+        (tmp_path / "bad.msgpack").write_bytes(b"not a checkpoint")
+        load(tmp_path / "bad.msgpack", 10, 7, cfg)

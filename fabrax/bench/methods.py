@@ -131,9 +131,6 @@ class GFCSMethod:
     seed: int = 0
 
     def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]:
-        import jax.numpy as jnp
-
-        from fabrax.bench.ompl import CAPACITY
         from fabrax.planners.gfcs import GFCOP, GFCSConfig, solve
         from fabrax.planners.gfcs.solver import make_step
 
@@ -141,10 +138,7 @@ class GFCSMethod:
         fns = make_step(self.fabric, self.params, cfg)
         out = []
         for p in problems:
-            if p.goal_q is None:
-                raise ValueError(f"{p.name}: GFCS optimises joint-space commands toward a joint goal; this problem has a pose goal")
-            scene = p.scene.pad(**{k: max(v, p.scene.capacity[k]) for k, v in CAPACITY.items()})
-            prob = GFCOP(jnp.asarray(p.start_q, jnp.float32), jnp.zeros(robot.dof, jnp.float32), jnp.asarray(p.goal_q, jnp.float32), scene)
+            prob = GFCOP.from_problem(p)
             key = jax.random.fold_in(jax.random.PRNGKey(self.seed), zlib_hash(p.name))
             r = solve(self.fabric, self.params, prob, key, cfg, steps_fns=fns)
             variants, wall = {}, 0.0

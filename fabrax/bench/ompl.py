@@ -19,6 +19,7 @@ from fabrax.bench.checker import densify
 from fabrax.problems.clearance import state_clearances
 from fabrax.problems.problem import Problem
 from fabrax.robot.robot import Robot
+from fabrax.scene import COMMON_CAPACITY
 
 PLANNERS = ("RRTConnect", "BITstar", "BiEST", "AITstar", "RRTstar", "PRM")
 
@@ -33,7 +34,6 @@ def available() -> tuple[str, ...]:
 
 
 BUCKETS = tuple(1 << k for k in range(10))  # batch sizes of validity calls (1 ... 512 states)
-CAPACITY = {"cuboids": 32, "cylinders": 16, "spheres": 8, "points": 0}  # one compiled shape for every scene
 
 
 class _Checker:
@@ -41,8 +41,7 @@ class _Checker:
     to one capacity, so that every call reuses a compiled function."""
 
     def __init__(self, robot: Robot, problem: Problem, resolution: float):
-        cap = {k: max(v, problem.scene.capacity[k]) for k, v in CAPACITY.items()}
-        self.robot, self.scene, self.resolution = robot, problem.scene.pad(**cap), resolution
+        self.robot, self.scene, self.resolution = robot, problem.scene.pad(**COMMON_CAPACITY), resolution
         self.calls = 0
 
     def warm_up(self) -> None:

@@ -1,9 +1,10 @@
 """Scenes: padded pytrees of primitives and exact signed distances."""
 
-from fabrax.scene.primitives import Cuboids, Cylinders, PointCloud, Scene, Spheres, empty, from_dict, load, stack, to_dict
+from fabrax.scene.primitives import COMMON_CAPACITY, Cuboids, Cylinders, PointCloud, Scene, Spheres, empty, from_dict, load, stack, to_dict
 from fabrax.scene.sdf import FAR, distance, distance_kinematics, primitive_mask, signed_distances
 
 __all__ = [
+    "COMMON_CAPACITY",
     "FAR",
     "Cuboids",
     "Cylinders",

@@ -117,6 +117,11 @@ def _quat(obs: dict, where: str) -> np.ndarray:
     return q / norm
 
 
+# Capacity that holds every benchmark scene (MotionBenchMaker, generated): padding scenes to it gives
+# one compiled shape per solver, whatever the problem.
+COMMON_CAPACITY = {"cuboids": 32, "cylinders": 16, "spheres": 8, "points": 0}
+
+
 def empty(cuboids: int = 0, cylinders: int = 0, spheres: int = 0, points: int = 0) -> Scene:
     """A scene with no obstacles and the given capacities."""
     return from_dict({"obstacles": []}, capacity=dict(cuboids=cuboids, cylinders=cylinders, spheres=spheres, points=points))

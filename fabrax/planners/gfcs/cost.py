@@ -15,12 +15,13 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from fabrax.fabrics.fabric import Params
 from fabrax.rollout.rollout import rollout_sequence
 from fabrax.rollout.trajectory import Trajectory
-from fabrax.scene import Scene
+from fabrax.scene import COMMON_CAPACITY, Scene
 
 
 @struct.dataclass
@@ -31,6 +32,16 @@ class GFCOP:
     start_qd: jax.Array
     goal_q: jax.Array
     scene: Scene
+
+    @classmethod
+    def from_problem(cls, p) -> "GFCOP":
+        """From a `fabrax.problems.Problem` with a joint goal; the scene padded to `COMMON_CAPACITY`
+        so that every problem runs the same compiled solver."""
+        if p.goal_q is None:
+            raise ValueError(f"{p.name}: GFCS optimises joint-space commands toward a joint goal; this problem has a pose goal")
+        qd = p.start_qd if p.start_qd is not None else np.zeros(len(p.start_q))
+        f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+        return cls(f32(p.start_q), f32(qd), f32(p.goal_q), p.scene.pad(**COMMON_CAPACITY))
 
 
 def to_commands(z: jax.Array, lower: jax.Array, upper: jax.Array) -> jax.Array:

@@ -1,0 +1,179 @@
+"""Self-supervised GFCS learning (gfcs_paper Algorithm 2) with checkpoint and resume.
+
+Problems are solved one after another with the current sampler (uniform at
+first, then SGLD on the energy model); the top-m solutions of each solve that
+reached the goal without collision enter a FIFO buffer (MaintainBuffer), and
+the model is retrained on the buffer after every `retrain_every` solves, for
+`passes` passes over the problems. Every solve ends with a checkpoint (model,
+optimiser, buffer, position, in one msgpack file), and all randomness is
+derived from (seed, position), so an interrupted run resumes to the same
+buffer and model.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import nnx, serialization, traverse_util
+
+from fabrax.planners.gfcs.cost import GFCOP, to_commands, to_unconstrained
+from fabrax.planners.gfcs.ebm import EnergyModel, SGLDConfig, sgld, train_step
+from fabrax.planners.gfcs.encoding import Encoding
+from fabrax.planners.gfcs.solver import GFCSConfig, make_step, solve
+
+
+@dataclasses.dataclass(frozen=True)
+class SelfSupConfig:
+    buffer_size: int = 200
+    top_m: int = 4
+    retrain_every: int = 25
+    passes: int = 2
+    train_steps: int = 100
+    batch: int = 32
+    n_neg: int = 8
+    lr: float = 1e-4
+    hidden: int = 800
+    layers: int = 3
+    sgld: SGLDConfig = SGLDConfig(steps=20)
+    seed: int = 0
+
+
+@dataclasses.dataclass
+class Learner:
+    """The energy model, its optimiser and the buffer of (context, target, cost)."""
+
+    model: EnergyModel
+    opt: nnx.Optimizer
+    contexts: np.ndarray  # (B, C)
+    targets: np.ndarray  # (B, D) in [0, 1]
+    costs: np.ndarray  # (B,)
+    solved: int = 0  # solves done (position in the schedule)
+    trained: bool = False
+    losses: list = dataclasses.field(default_factory=list)
+
+
+def new_learner(context_dim: int, target_dim: int, cfg: SelfSupConfig) -> Learner:
+    model = EnergyModel(context_dim, target_dim, cfg.hidden, cfg.layers, rngs=nnx.Rngs(cfg.seed))
+    opt = nnx.Optimizer(model, optax.adam(cfg.lr), wrt=nnx.Param)
+    return Learner(model, opt, np.zeros((0, context_dim), np.float32), np.zeros((0, target_dim), np.float32), np.zeros(0, np.float32))
+
+
+def save(learner: Learner, path: Path) -> None:
+    """Write the learner atomically (a crash mid-write never leaves a broken checkpoint)."""
+    data = {
+        "model": _flat(nnx.to_pure_dict(nnx.state(learner.model, nnx.Param))),
+        "opt": _flat(nnx.to_pure_dict(nnx.state(learner.opt, nnx.OptState))),
+        "contexts": learner.contexts,
+        "targets": learner.targets,
+        "costs": learner.costs,
+        "solved": learner.solved,
+        "trained": learner.trained,
+        "losses": np.asarray(learner.losses, np.float32),
+    }
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_bytes(serialization.msgpack_serialize(jax.tree.map(np.asarray, data)))
+    os.replace(tmp, path)
+
+
+def _flat(tree: dict) -> dict:
+    """String keys for msgpack (nnx pure dicts index list layers by int)."""
+    return {"/".join(map(str, k)): np.asarray(v) for k, v in traverse_util.flatten_dict(tree).items()}
+
+
+def _unflat(flat: dict) -> dict:
+    def ints(d):
+        return {int(k) if k.isdigit() else k: ints(v) if isinstance(v, dict) else v for k, v in d.items()}
+
+    return ints(traverse_util.unflatten_dict(flat, sep="/"))
+
+
+def load(path: Path, context_dim: int, target_dim: int, cfg: SelfSupConfig) -> Learner:
+    try:
+        data = serialization.msgpack_restore(Path(path).read_bytes())
+    except (OSError, ValueError) as e:
+        raise ValueError(f"cannot read GFCS checkpoint {path}: {e}") from e
+    learner = new_learner(context_dim, target_dim, cfg)
+    for obj, key, filt in ((learner.model, "model", nnx.Param), (learner.opt, "opt", nnx.OptState)):
+        state = nnx.state(obj, filt)
+        nnx.replace_by_pure_dict(state, _unflat(data[key]))
+        nnx.update(obj, state)
+    learner.contexts, learner.targets, learner.costs = (np.asarray(data[k]) for k in ("contexts", "targets", "costs"))
+    learner.solved, learner.trained = int(data["solved"]), bool(data["trained"])
+    learner.losses = [float(v) for v in np.asarray(data["losses"]).reshape(-1)]
+    return learner
+
+
+def learned_samples(learner: Learner, robot, context: jax.Array, key: jax.Array, population: int, n_commands: int, cfg: SelfSupConfig):
+    """Warm-start candidates from SGLD on the energy model, in the solver's unconstrained space."""
+    u = sgld(learner.model, context, key, population, cfg.sgld).reshape(population, n_commands, robot.dof)
+    return to_unconstrained(robot.lower + u * (robot.upper - robot.lower), robot.lower, robot.upper, eps=1e-3)
+
+
+def train(learner: Learner, key: jax.Array, cfg: SelfSupConfig) -> None:
+    """`train_steps` Adam steps on InfoNCE over minibatches of the buffer."""
+    n = len(learner.targets)
+    for s in range(cfg.train_steps):
+        k_idx, k_neg = jax.random.split(jax.random.fold_in(key, s))
+        idx = np.asarray(jax.random.choice(k_idx, n, (min(cfg.batch, n),), replace=False))
+        loss = train_step(
+            learner.model, learner.opt, jnp.asarray(learner.contexts[idx]), jnp.asarray(learner.targets[idx]), k_neg, cfg.n_neg, cfg.sgld
+        )
+        learner.losses.append(float(loss))
+    learner.trained = True
+
+
+def run(
+    fabric,
+    params,
+    problems: list,
+    gfcs_cfg: GFCSConfig,
+    cfg: SelfSupConfig,
+    checkpoint: Path,
+    encoding: Encoding = Encoding(),
+    log: Callable[[str], None] = print,
+    stop_after: int | None = None,
+) -> Learner:
+    """Algorithm 2 over `problems` (joint goals) for `cfg.passes` passes; resumes from `checkpoint`
+    when it exists. stop_after: return after this many solves in this call (to test resumption)."""
+    robot = fabric.robot
+    gfcops = [GFCOP.from_problem(p) for p in problems]
+    contexts = [np.asarray(encoding.context(robot, g.start_q, g.start_qd, g.goal_q, g.scene), np.float32) for g in gfcops]
+    target_dim = gfcs_cfg.n_commands * robot.dof
+    checkpoint = Path(checkpoint)
+    learner = load(checkpoint, len(contexts[0]), target_dim, cfg) if checkpoint.exists() else new_learner(len(contexts[0]), target_dim, cfg)
+    if learner.solved:
+        log(f"resuming after {learner.solved} solves ({len(learner.targets)} buffered)")
+    fns = make_step(fabric, params, gfcs_cfg)
+    base = jax.random.PRNGKey(cfg.seed)
+    total = cfg.passes * len(problems)
+    done_here = 0
+    while learner.solved < total and (stop_after is None or done_here < stop_after):
+        i = learner.solved
+        k = jax.random.fold_in(base, i)
+        k_samp, k_solve, k_train = jax.random.split(k, 3)
+        x = jnp.asarray(contexts[i % len(problems)])
+        samples = learned_samples(learner, robot, x, k_samp, gfcs_cfg.population, gfcs_cfg.n_commands, cfg) if learner.trained else None
+        r = solve(fabric, params, gfcops[i % len(problems)], k_solve, gfcs_cfg, samples=samples, steps_fns=fns)
+        good = r.top_cost < gfcs_cfg.penalty  # reached, no collision
+        u = (np.asarray(to_commands(jnp.asarray(r.top_z[good]), robot.lower, robot.upper)) - np.asarray(robot.lower)) / np.asarray(
+            robot.upper - robot.lower
+        )
+        learner.contexts = np.concatenate([learner.contexts, np.repeat(contexts[i % len(problems)][None], good.sum(), 0)])[-cfg.buffer_size :]
+        learner.targets = np.concatenate([learner.targets, u.reshape(len(u), target_dim).astype(np.float32)])[-cfg.buffer_size :]
+        learner.costs = np.concatenate([learner.costs, r.top_cost[good].astype(np.float32)])[-cfg.buffer_size :]
+        learner.solved += 1
+        done_here += 1
+        if learner.solved % cfg.retrain_every == 0 and len(learner.targets):
+            train(learner, k_train, cfg)
+            log(f"retrained on {len(learner.targets)} buffered solutions, loss {np.mean(learner.losses[-10:]):.3f}")
+        save(learner, checkpoint)
+        log(f"solve {learner.solved}/{total} {problems[i % len(problems)].name}: best cost {r.best_cost:.2f}, {int(good.sum())} kept")
+    return learner
