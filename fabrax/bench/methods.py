@@ -114,9 +114,11 @@ class OMPLMethod:
 @dataclasses.dataclass
 class GFCSMethod:
     """GFCS (gfcs_paper Algorithm 1): CMA-ES over fabric command sequences, warm-started by a
-    uniform sampler, one problem at a time with the population in one `vmap`. Reports the best
-    motion after the last batch and, as variants `<name> (k b)`, after each batch in `report`.
-    Plan time of a variant is the wall time of its batches (compilation excluded)."""
+    uniform sampler or, with `learner`, by SGLD samples of a trained energy model
+    (`fabrax.planners.gfcs.selfsup`); one problem at a time with the population in one `vmap`.
+    Reports the best motion after the last batch and, as variants `<name> (k b)`, after each batch
+    in `report`. Plan time of a variant is the wall time of sampling and its batches (compilation
+    excluded)."""
 
     fabric: Any
     params: Any
@@ -129,6 +131,15 @@ class GFCSMethod:
     std_init: float = 1.0
     report: tuple = (1, 5)
     seed: int = 0
+    learner: Any = None  # a trained selfsup.Learner: warm-start from its SGLD samples
+    selfsup: Any = None  # its selfsup.SelfSupConfig
+    encoding: Any = None  # its encoding.Encoding
+
+    def _samples(self, robot: Robot, prob, key):
+        from fabrax.planners.gfcs.selfsup import learned_samples
+
+        x = self.encoding.context(robot, prob.start_q, prob.start_qd, prob.goal_q, prob.scene)
+        return jax.block_until_ready(learned_samples(self.learner, robot, x, key, self.population, self.n_commands, self.selfsup))
 
     def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]:
         from fabrax.planners.gfcs import GFCOP, GFCSConfig, solve
@@ -140,8 +151,16 @@ class GFCSMethod:
         for p in problems:
             prob = GFCOP.from_problem(p)
             key = jax.random.fold_in(jax.random.PRNGKey(self.seed), zlib_hash(p.name))
-            r = solve(self.fabric, self.params, prob, key, cfg, steps_fns=fns)
-            variants, wall = {}, 0.0
+            samples, wall = None, 0.0
+            if self.learner is not None:
+                k_samp = jax.random.fold_in(key, 1)
+                if not out:
+                    self._samples(robot, prob, k_samp)  # compile outside the clock
+                t0 = time.perf_counter()
+                samples = self._samples(robot, prob, k_samp)
+                wall = time.perf_counter() - t0
+            r = solve(self.fabric, self.params, prob, key, cfg, samples=samples, steps_fns=fns)
+            variants = {}
             for b in r.per_batch:
                 wall += b["wall_s"]
                 tr = b["trajectory"]
