@@ -154,3 +154,18 @@ def test_self_supervised_run_checkpoints_and_resumes(tmp_path, panda, fabric_par
     with pytest.raises(ValueError, match="cannot read GFCS checkpoint"):
         (tmp_path / "bad.msgpack").write_bytes(b"not a checkpoint")
         load(tmp_path / "bad.msgpack", 10, 7, cfg)
+
+
+def test_blocking_cuboids_block_the_path_not_the_ends(panda):
+    from fabrax.bench import check_path
+    from fabrax.planners.gfcs.reactive import blocking_cuboids, with_obstacles
+
+    goal = READY + np.array([1.2, 0.3, 0, 0.3, 0, 0, 0], np.float32)
+    path = READY + np.linspace(0, 1, 120)[:, None] * (goal - READY)
+    base = from_dict({"obstacles": [{"type": "cuboid", "center": [-0.5, 0.0, 0.2], "size": [0.1, 0.1, 0.1]}]})
+    cubes = blocking_cuboids(panda, path, base, READY, goal, np.random.default_rng(0), n=2)
+    scene = with_obstacles(base, cubes)
+    assert int(scene.cuboids.mask.sum()) == 3
+    assert check_path(panda, scene, path).collision and not check_path(panda, base, path).collision
+    for q in (READY, goal):
+        assert check_path(panda, scene, q[None]).min_clearance >= 0.03

@@ -1,0 +1,74 @@
+"""Reactive re-execution of a solved command sequence among new obstacles (gfcs_paper §V, Fig. 4).
+
+After GFCS has solved a problem, cuboids are added that block the solved
+motion: each is centred on a collision sphere of the arm at a random moment of
+the middle of the trajectory, so the old motion runs into it, and is rejected
+if it touches the start or goal configuration. The same commands are then
+executed by the fabric in the new scene without re-optimising; the fabric's
+obstacle terms must avoid what the optimiser never saw.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from fabrax.bench.checker import check_path
+from fabrax.planners.gfcs.cost import GFCOP
+from fabrax.robot.kinematics import sphere_centers
+from fabrax.rollout.rollout import rollout_sequence
+from fabrax.rollout.trajectory import Trajectory
+from fabrax.scene import COMMON_CAPACITY, Scene, from_dict, to_dict
+
+
+def blocking_cuboids(
+    robot,
+    q_path: np.ndarray,
+    scene: Scene,
+    start_q,
+    goal_q,
+    rng: np.random.Generator,
+    n: int = 1,
+    size=(0.06, 0.14),
+    clear: float = 0.03,
+    tries: int = 200,
+) -> list[dict]:
+    """n random cuboids that intersect the path q_path (T, dof) but keep `clear` m from the start and goal."""
+    out = []
+    spheres = jax.jit(jax.vmap(lambda q: sphere_centers(robot, q)))
+    for _ in range(tries):
+        if len(out) == n:
+            break
+        t = int(rng.integers(int(0.25 * len(q_path)), max(int(0.75 * len(q_path)), int(0.25 * len(q_path)) + 1)))
+        x = np.asarray(spheres(jnp.asarray(q_path[t : t + 1], jnp.float32))[0])
+        center = x[int(rng.integers(len(x)))]
+        yaw = rng.uniform(-np.pi, np.pi)
+        cub = {
+            "type": "cuboid",
+            "center": center.tolist(),
+            "quat_wxyz": [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)],
+            "size": rng.uniform(*size, 3).tolist(),
+        }
+        trial = from_dict({"obstacles": [cub]})
+        ends = np.stack([start_q, goal_q])
+        if check_path(robot, trial, ends[:1], margin=clear).collision or check_path(robot, trial, ends[1:], margin=clear).collision:
+            continue
+        out.append(cub)
+    if len(out) < n:
+        raise ValueError(f"could not place {n} blocking cuboids clear of the start and goal in {tries} tries")
+    return out
+
+
+def with_obstacles(scene: Scene, obstacles: list[dict]) -> Scene:
+    """The scene plus extra obstacles, padded to the common capacity."""
+    data = to_dict(scene)
+    data["obstacles"] = data["obstacles"] + obstacles
+    return from_dict(data).pad(**COMMON_CAPACITY)
+
+
+def reexecute(fabric, params, problem: GFCOP, commands: jax.Array, scene: Scene, dt: float = 0.01, steps: int = 700) -> Trajectory:
+    """Execute commands (n, dof) then the goal with the fabric in `scene`, without re-optimising."""
+    goals = jnp.concatenate([jnp.asarray(commands, jnp.float32), problem.goal_q[None]], axis=0)
+    params_seq = jax.vmap(lambda g: fabric.with_joint_goal(params, g))(goals)
+    return rollout_sequence(fabric, params_seq, scene, problem.start_q, problem.start_qd, fabric.reached, dt=dt, steps=steps)
