@@ -59,7 +59,16 @@ def collect(runs: list[Path]) -> dict:
 
 def markdown(result: dict) -> str:
     fmt = lambda s: "NA" if s is None else f"{s['mean']:.2f} ± {s['std']:.2f}"  # noqa: E731
-    out = []
+    classes = list(result["classes"])
+    names = list(dict.fromkeys(n for c in classes for n in result["classes"][c]))
+    out = ["Success % (collision %) per class:\n", "| method | " + " | ".join(classes) + " |", "|---|" + "---:|" * len(classes)]
+    for name in names:
+        cells = []
+        for c in classes:
+            e = result["classes"][c].get(name)
+            cells.append("–" if e is None or e["success_pct"] is None else f"{e['success_pct']:.0f} ({e['collision_pct']:.0f})")
+        out.append(f"| {name} | " + " | ".join(cells) + " |")
+    out.append("")
     for cls, methods in result["classes"].items():
         out.append(f"#### {cls}\n")
         out.append("| method | valid | success % | reached % | collision % | " + " | ".join(h for _, h in COLUMNS) + " |")

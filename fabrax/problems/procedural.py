@@ -27,7 +27,7 @@ from fabrax.problems.generators import ik_configs, sample_configs
 from fabrax.problems.problem import Problem, make_problem
 from fabrax.robot.kinematics import frame_pose
 from fabrax.robot.robot import Robot
-from fabrax.scene import from_dict
+from fabrax.scene import COMMON_CAPACITY, from_dict
 
 MBM_LIKE = ("table_pick", "table_under_pick", "box", "bookshelf", "cage")
 MPINETS_LIKE = ("cubby", "merged_cubby", "dresser", "tabletop")
@@ -229,7 +229,7 @@ def _one(robot: Robot, cls: str, rng: np.random.Generator, name: str, frame: str
         scene_dict, goals = SCENES[cls](rng)
         if not goals:
             continue
-        scene = from_dict(scene_dict)
+        scene = from_dict(scene_dict).pad(**COMMON_CAPACITY)  # one shape: one compiled IK/checker for every scene
         position, quat = goals[int(rng.integers(len(goals)))]
         solutions = ik_configs(robot, scene, frame, position, quat, rng, seeds=128, margin=0.005, near=READY)
         if len(solutions) == 0:
