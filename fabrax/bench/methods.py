@@ -46,18 +46,21 @@ class FabricMethod:
     dt: float = 0.01
     t_max: float = 7.0
     batch_size: int = 64
+    _compiled: dict = dataclasses.field(default_factory=dict, repr=False)  # by batch shape, across calls
 
     def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]:
         from fabrax.rollout import reach
+        from fabrax.scene import COMMON_CAPACITY
 
         steps = int(round(self.t_max / self.dt))
         run = jax.jit(lambda b: reach(self.fabric, self.params, b, dt=self.dt, steps=steps))
         out: list[Solution] = []
-        compiled = {}
+        compiled = self._compiled
         for start in range(0, len(problems), self.batch_size):
             chunk = problems[start : start + self.batch_size]
-            pad = self.batch_size - len(chunk) if len(problems) > self.batch_size else 0
-            b = batch(chunk + [chunk[-1]] * pad)
+            size = min(self.batch_size, 1 << (len(chunk) - 1).bit_length())  # few batch shapes: few compilations
+            padded = [dataclasses.replace(p, scene=p.scene.pad(**COMMON_CAPACITY)) for p in chunk + [chunk[-1]] * (size - len(chunk))]
+            b = batch(padded)
             shapes = jax.tree.map(lambda a: a.shape, b)
             key = str(shapes)
             compile_s = 0.0

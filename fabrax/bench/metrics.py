@@ -80,7 +80,9 @@ def evaluate(
     else:
         reached = pos_err <= goal.position and rot_err <= np.deg2rad(goal.orientation_deg)
     duration = (len(q) - 1) * dt
-    ee = np.asarray(_frame_path(robot, jnp.asarray(q, jnp.float32), frame)[0], np.float64)
+    pad = (-len(q)) % 256  # a few compiled lengths, not one per trajectory length
+    padded = np.concatenate([q, np.repeat(q[-1:], pad, 0)]) if pad else q
+    ee = np.asarray(_frame_path(robot, jnp.asarray(padded, jnp.float32), frame)[0], np.float64)[: len(q)]
     dq, dee = np.diff(q, axis=0), np.diff(ee, axis=0)
     return {
         "success": bool(reached and not check.collision and check.limits_ok),
