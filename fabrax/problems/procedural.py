@@ -236,14 +236,20 @@ def _one(robot: Robot, cls: str, rng: np.random.Generator, name: str, frame: str
             continue
         if cls == "table_under_pick":  # start below the table
             table_top = scene_dict["obstacles"][0]["center"][2]
-            starts = sample_configs(robot, scene, 64, rng, margin=0.02, around=READY, spread=0.8)
+            try:
+                starts = sample_configs(robot, scene, 64, rng, margin=0.02, around=READY, spread=0.8)
+            except ValueError:
+                continue
             z = np.asarray([float(frame_pose(robot, q.astype(np.float32), frame).translation()[2]) for q in starts])
             below = starts[z < table_top - 0.1]
             if len(below) == 0:
                 continue
             start = below[0]
         elif pose_goal:
-            start = sample_configs(robot, scene, 1, rng, margin=0.03, around=READY, spread=0.5)[0]
+            try:
+                start = sample_configs(robot, scene, 1, rng, margin=0.03, around=READY, spread=0.5)[0]
+            except ValueError:
+                continue  # this scene leaves no room near the ready posture: draw another
         else:
             start = READY
         try:
