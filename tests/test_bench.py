@@ -245,3 +245,17 @@ def test_ompl_rrtconnect_through_the_cli(tmp_path):
     assert row["method"] == "rrtconnect" and row["valid_problem"]
     if row["reached"]:  # a found path is retimed and re-checked by the same checker
         assert not row["collision"] and row["duration_s"] > 0
+
+
+def test_bench_cli_gfcs_reports_batch_variants(tmp_path):
+    from fabrax.bench.cli import main
+
+    out = tmp_path / "gfcs"
+    args = ["method=gfcs", "method.population=4", "method.batches=2", "method.report=[1]", "problems=mbm_like", "classes=[cage]"]
+    assert main(args + ["limit=1", "t_max=1.0", f"out={out}", "progress=false"]) == 0
+    rows = json.loads((out / "results.json").read_text())["rows"]
+    assert sorted(r["method"] for r in rows) == ["gfcs", "gfcs (1 b)"]
+    final, first = sorted(rows, key=lambda r: r["method"])
+    assert final["plan_time_s"] >= first["plan_time_s"] > 0  # the final row includes the first batch's time
+    assert final["info"]["cost"] <= first["info"]["cost"]  # best-so-far never worsens
+    assert len(final["info"]["commands"]) == 1 and len(final["info"]["batch_wall_s"]) == 2
