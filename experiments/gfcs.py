@@ -35,10 +35,10 @@ def main(dcfg: DictConfig) -> None:
     import jax
 
     from fabrax import config
+    from fabrax.bench.cli import gfcs_config
     from fabrax.bench.methods import GFCSMethod
     from fabrax.bench.metrics import Goal
     from fabrax.bench.runner import run, summary_table, write
-    from fabrax.planners.gfcs import GFCSConfig
     from fabrax.planners.gfcs.ebm import SGLDConfig
     from fabrax.planners.gfcs.encoding import Encoding
     from fabrax.planners.gfcs.selfsup import SelfSupConfig
@@ -49,7 +49,7 @@ def main(dcfg: DictConfig) -> None:
     robot = config.load_robot(cfg["robot"] or ("panda_mbm" if cfg["problems"] == "mbm" else "panda"))
     fabric, params = config.load_fabric(robot, cfg["fabric"])
     m = dict(cfg["method"])
-    gfcs_cfg = GFCSConfig(m["n_commands"], m["population"], m["batches"], std_init=m["std_init"], dt=cfg["dt"], t_max=cfg["t_max"])
+    gfcs_cfg = gfcs_config(m, cfg)
     ss = dict(cfg["selfsup"])
     ss_cfg = SelfSupConfig(**{**ss, "sgld": SGLDConfig(**ss["sgld"]), "seed": cfg["seed"]})
     enc = Encoding(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg["encoding"].items()})
@@ -62,11 +62,9 @@ def main(dcfg: DictConfig) -> None:
 
     test = problems_for(cfg, robot, "test", cfg["test_limit"])
     rows = []
-    common = dict(dt=cfg["dt"], t_max=cfg["t_max"], seed=cfg["seed"], n_commands=m["n_commands"], population=m["population"])
-    common.update(batches=m["batches"], std_init=m["std_init"], report=tuple(m["report"]))
     for name in cfg["evaluate"]:
         extra = dict(learner=learner, selfsup=ss_cfg, encoding=enc) if name == "gfcs_learned" else {}
-        method = GFCSMethod(fabric, params, name=name, **common, **extra)
+        method = GFCSMethod(fabric, params, gfcs_cfg, name, tuple(m["report"]), cfg["seed"], **extra)
         rows += run(method, robot, test, goal=Goal(**cfg["goal"]), margin=cfg["margin"], frame=cfg["frame"], progress=cfg["progress"])
     meta = {
         "config": cfg,
@@ -85,8 +83,6 @@ def main(dcfg: DictConfig) -> None:
 
 def reactive(cfg: dict, robot, fabric, params, problems, rows) -> dict:
     """gfcs_paper §V: block each solved motion with new cuboids, re-execute the same commands."""
-    import dataclasses as dc
-
     import jax.numpy as jnp
     import numpy as np
 
@@ -108,13 +104,13 @@ def reactive(cfg: dict, robot, fabric, params, problems, rows) -> dict:
         old = reexecute(fabric, params, prob, jnp.asarray(commands), prob.scene, cfg["dt"], int(round(cfg["t_max"] / cfg["dt"])))
         q_old = np.asarray(old.q[: int(old.length)])
         try:
-            new = blocking_cuboids(robot, q_old, p.scene, p.start_q, p.goal_q, rng, n=cfg["reactive"]["n_obstacles"])
+            new = blocking_cuboids(robot, q_old, p.start_q, p.goal_q, rng, n=cfg["reactive"]["n_obstacles"])
         except ValueError:
             continue
         scene = with_obstacles(p.scene, new)
         blocked = check_path(robot, scene, q_old).collision
         tr = reexecute(fabric, params, prob, jnp.asarray(commands), scene, cfg["dt"], int(round(cfg["t_max"] / cfg["dt"])))
-        m = evaluate(robot, dc.replace(p, scene=scene), np.asarray(tr.q[: int(tr.length)]), cfg["dt"], goal=Goal(**cfg["goal"]))
+        m = evaluate(robot, dataclasses.replace(p, scene=scene), np.asarray(tr.q[: int(tr.length)]), cfg["dt"], goal=Goal(**cfg["goal"]))
         out.append(
             {"problem": p.name, "old_path_blocked": blocked, "collision_free": not m["collision"], "reached": m["reached"], "success": m["success"]}
         )

@@ -163,7 +163,7 @@ def test_blocking_cuboids_block_the_path_not_the_ends(panda):
     goal = READY + np.array([1.2, 0.3, 0, 0.3, 0, 0, 0], np.float32)
     path = READY + np.linspace(0, 1, 120)[:, None] * (goal - READY)
     base = from_dict({"obstacles": [{"type": "cuboid", "center": [-0.5, 0.0, 0.2], "size": [0.1, 0.1, 0.1]}]})
-    cubes = blocking_cuboids(panda, path, base, READY, goal, np.random.default_rng(0), n=2)
+    cubes = blocking_cuboids(panda, path, READY, goal, np.random.default_rng(0), n=2)
     scene = with_obstacles(base, cubes)
     assert int(scene.cuboids.mask.sum()) == 3
     assert check_path(panda, scene, path).collision and not check_path(panda, base, path).collision

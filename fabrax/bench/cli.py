@@ -44,6 +44,14 @@ def load_problems(cfg: dict, robot) -> list:
     raise SystemExit(f"fabrax bench: problems must be mbm, mbm_like or mpinets_like, got '{kind}'")
 
 
+def gfcs_config(method: dict, cfg: dict):
+    """GFCS solver settings from a method config (configs/method/gfcs.yaml) and the run's dt and t_max."""
+    from fabrax.planners.gfcs import GFCSConfig
+
+    keys = ("n_commands", "population", "batches", "std_init")
+    return GFCSConfig(**{k: method[k] for k in keys}, dt=cfg["dt"], t_max=cfg["t_max"])
+
+
 def make_method(cfg: dict, robot):
     from fabrax.bench.methods import FabricMethod, GFCSMethod, OMPLMethod
 
@@ -54,8 +62,7 @@ def make_method(cfg: dict, robot):
         return FabricMethod(fabric, params, dt=cfg["dt"], t_max=cfg["t_max"], **m)
     if kind == "gfcs":
         fabric, params = config.load_fabric(robot, cfg["fabric"])
-        m["report"] = tuple(m.get("report", ()))
-        return GFCSMethod(fabric, params, dt=cfg["dt"], t_max=cfg["t_max"], seed=cfg["seed"], **m)
+        return GFCSMethod(fabric, params, gfcs_config(m, cfg), m["name"], tuple(m["report"]), cfg["seed"])
     if kind == "ompl":
         return OMPLMethod(dt=cfg["dt"], **m)
     raise SystemExit(f"fabrax bench: unknown method type '{kind}'")

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import zlib
 from typing import Any, Protocol
 
 import jax
@@ -125,30 +126,25 @@ class GFCSMethod:
 
     fabric: Any
     params: Any
+    config: Any = None  # planners.gfcs.GFCSConfig (None: its defaults)
     name: str = "gfcs"
-    dt: float = 0.01
-    t_max: float = 7.0
-    n_commands: int = 1
-    population: int = 64
-    batches: int = 5
-    std_init: float = 1.0
     report: tuple = (1, 5)
     seed: int = 0
     learner: Any = None  # a trained selfsup.Learner: warm-start from its SGLD samples
     selfsup: Any = None  # its selfsup.SelfSupConfig
     encoding: Any = None  # its encoding.Encoding
 
-    def _samples(self, robot: Robot, prob, key):
+    def _samples(self, robot: Robot, prob, key, cfg):
         from fabrax.planners.gfcs.selfsup import learned_samples
 
         x = self.encoding.context(robot, prob.start_q, prob.start_qd, prob.goal_q, prob.scene)
-        return jax.block_until_ready(learned_samples(self.learner, robot, x, key, self.population, self.n_commands, self.selfsup))
+        return jax.block_until_ready(learned_samples(self.learner, robot, x, key, cfg.population, cfg.n_commands, self.selfsup))
 
     def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]:
         from fabrax.planners.gfcs import GFCOP, GFCSConfig, solve
         from fabrax.planners.gfcs.solver import make_step
 
-        cfg = GFCSConfig(self.n_commands, self.population, self.batches, std_init=self.std_init, dt=self.dt, t_max=self.t_max)
+        cfg = self.config or GFCSConfig()
         fns = make_step(self.fabric, self.params, cfg)
         out = []
         for p in problems:
@@ -158,17 +154,17 @@ class GFCSMethod:
             if self.learner is not None:
                 k_samp = jax.random.fold_in(key, 1)
                 if not out:
-                    self._samples(robot, prob, k_samp)  # compile outside the clock
+                    self._samples(robot, prob, k_samp, cfg)  # compile outside the clock
                 t0 = time.perf_counter()
-                samples = self._samples(robot, prob, k_samp)
+                samples = self._samples(robot, prob, k_samp, cfg)
                 wall = time.perf_counter() - t0
             r = solve(self.fabric, self.params, prob, key, cfg, samples=samples, steps_fns=fns)
             variants = {}
             for b in r.per_batch:
                 wall += b["wall_s"]
                 tr = b["trajectory"]
-                sol = Solution(np.asarray(tr.q[: int(tr.length)]), self.dt, wall, 0.0, {"cost": b["best_cost"], "batch": b["batch"]})
-                if b["batch"] in self.report and b["batch"] != self.batches:
+                sol = Solution(np.asarray(tr.q[: int(tr.length)]), cfg.dt, wall, 0.0, {"cost": b["best_cost"], "batch": b["batch"]})
+                if b["batch"] in self.report and b["batch"] != cfg.batches:
                     variants[f"{self.name} ({b['batch']} b)"] = sol
             final = sol
             final.compile_s = r.compile_s
@@ -179,6 +175,4 @@ class GFCSMethod:
 
 def zlib_hash(name: str) -> int:
     """A stable 31-bit hash of a problem name (seeds per problem, independent of order)."""
-    import zlib
-
     return zlib.crc32(name.encode()) & 0x7FFFFFFF

@@ -13,15 +13,13 @@ duration_s   trajectory time
 from __future__ import annotations
 
 import dataclasses
-import functools
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from fabrax.bench.checker import check_path
 from fabrax.problems.problem import Problem
-from fabrax.robot.kinematics import frame_pose
+from fabrax.robot.kinematics import frame_path
 from fabrax.robot.robot import Robot
 
 
@@ -44,16 +42,10 @@ def log_dimensionless_jerk(speed: np.ndarray, dt: float) -> float:
     return float(-np.log(duration**3 / speed.max() ** 2 * np.sum(jerk**2) * dt))
 
 
-@functools.partial(jax.jit, static_argnames=("frame",))
-def _frame_path(robot: Robot, q: jax.Array, frame: str):
-    poses = jax.vmap(lambda qi: frame_pose(robot, qi, frame))(q)
-    return poses.translation(), poses.rotation().wxyz
-
-
 def goal_errors(robot: Robot, problem: Problem, q_final: np.ndarray, frame: str) -> tuple[float, float, float]:
     """(joint error rad, position error m, orientation error rad) of the final state."""
     joint = float(np.linalg.norm(q_final - problem.goal_q)) if problem.goal_q is not None else float("nan")
-    pos, quat = (np.asarray(a)[0] for a in _frame_path(robot, jnp.asarray(q_final[None], jnp.float32), frame))
+    pos, quat = (np.asarray(a)[0] for a in frame_path(robot, jnp.asarray(q_final[None], jnp.float32), frame))
     if problem.goal_pose is None:
         return joint, float("nan"), float("nan")
     target_pos, target_quat = problem.goal_pose
@@ -82,7 +74,7 @@ def evaluate(
     duration = (len(q) - 1) * dt
     pad = (-len(q)) % 256  # a few compiled lengths, not one per trajectory length
     padded = np.concatenate([q, np.repeat(q[-1:], pad, 0)]) if pad else q
-    ee = np.asarray(_frame_path(robot, jnp.asarray(padded, jnp.float32), frame)[0], np.float64)[: len(q)]
+    ee = np.asarray(frame_path(robot, jnp.asarray(padded, jnp.float32), frame)[0], np.float64)[: len(q)]
     dq, dee = np.diff(q, axis=0), np.diff(ee, axis=0)
     return {
         "success": bool(reached and not check.collision and check.limits_ok),

@@ -21,11 +21,12 @@ from __future__ import annotations
 
 import zlib
 
+import jax.numpy as jnp
 import numpy as np
 
 from fabrax.problems.generators import ik_configs, sample_configs
 from fabrax.problems.problem import Problem, make_problem
-from fabrax.robot.kinematics import frame_pose
+from fabrax.robot.kinematics import frame_path
 from fabrax.robot.robot import Robot
 from fabrax.scene import COMMON_CAPACITY, from_dict
 
@@ -240,7 +241,7 @@ def _one(robot: Robot, cls: str, rng: np.random.Generator, name: str, frame: str
                 starts = sample_configs(robot, scene, 64, rng, margin=0.02, around=READY, spread=0.8)
             except ValueError:
                 continue
-            z = np.asarray([float(frame_pose(robot, q.astype(np.float32), frame).translation()[2]) for q in starts])
+            z = np.asarray(frame_path(robot, jnp.asarray(starts, jnp.float32), frame)[0])[:, 2]
             below = starts[z < table_top - 0.1]
             if len(below) == 0:
                 continue

@@ -9,6 +9,7 @@ evaluation: positions, Jacobians and the curvature term Jdot qd (thesis eq.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -120,6 +121,14 @@ def frame_pose(robot, q, name: str) -> jaxlie.SE3:
     rot = r[f] @ robot.frame_offset_r[i]
     trans = r[f] @ robot.frame_offset_t[i] + t[f]
     return jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(rot), trans)
+
+
+@functools.partial(jax.jit, static_argnames=("name",))
+def frame_path(robot, qs, name: str):
+    """Positions (T, 3) and quaternions wxyz (T, 4) of a named frame along configurations qs (T, n).
+    Jitted once per frame and length: callers pad lengths to a few sizes."""
+    poses = jax.vmap(lambda q: frame_pose(robot, q, name))(qs)
+    return poses.translation(), poses.rotation().wxyz
 
 
 def sphere_centers(robot, q):

@@ -21,11 +21,12 @@ from fabrax.rollout.rollout import rollout_sequence
 from fabrax.rollout.trajectory import Trajectory
 from fabrax.scene import COMMON_CAPACITY, Scene, from_dict, to_dict
 
+_sphere_centers = jax.jit(sphere_centers)
+
 
 def blocking_cuboids(
     robot,
     q_path: np.ndarray,
-    scene: Scene,
     start_q,
     goal_q,
     rng: np.random.Generator,
@@ -36,12 +37,11 @@ def blocking_cuboids(
 ) -> list[dict]:
     """n random cuboids that intersect the path q_path (T, dof) but keep `clear` m from the start and goal."""
     out = []
-    spheres = jax.jit(jax.vmap(lambda q: sphere_centers(robot, q)))
     for _ in range(tries):
         if len(out) == n:
             break
         t = int(rng.integers(int(0.25 * len(q_path)), max(int(0.75 * len(q_path)), int(0.25 * len(q_path)) + 1)))
-        x = np.asarray(spheres(jnp.asarray(q_path[t : t + 1], jnp.float32))[0])
+        x = np.asarray(_sphere_centers(robot, jnp.asarray(q_path[t], jnp.float32)))
         center = x[int(rng.integers(len(x)))]
         yaw = rng.uniform(-np.pi, np.pi)
         cub = {
