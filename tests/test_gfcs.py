@@ -57,7 +57,7 @@ def test_cma_es_best_so_far_improves(fabric_params):
     assert all(b <= a for a, b in zip(best, best[1:]))
     assert r.best_cost == best[-1] == float(r.top_cost[0]) and len(r.top_cost) == cfg.top_m
     assert np.all(np.diff(r.top_cost) >= 0)
-    cost, _ = sequence_cost(fabric, params, _problem(goal, [wall]), jnp.asarray(r.best_z), steps=cfg.steps)
+    cost, _ = sequence_cost(fabric, params, _problem(goal, [wall]), jnp.asarray(r.best_z), steps=cfg.steps, patience=cfg.patience)
     assert float(cost) == pytest.approx(r.best_cost, rel=1e-5)  # the reported cost is the candidate's cost
     with pytest.raises(ValueError, match="samples"):
         solve(fabric, params, _problem(goal), jax.random.PRNGKey(0), cfg, samples=jnp.zeros((3, 1, 7)))

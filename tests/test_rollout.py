@@ -9,7 +9,7 @@ from fabrax.bench import check_path
 from fabrax.fabrics import max_acceleration
 from fabrax.problems import batch, make_problem
 from fabrax.robot import frame_pose
-from fabrax.rollout import reach, rollout, rollout_sequence
+from fabrax.rollout import reach, rollout, rollout_population, rollout_sequence
 
 READY = jnp.asarray([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
 GOAL = jnp.asarray([1.2, 0.3, 0.2, -1.6, 0.1, 1.9, 0.8])
@@ -120,3 +120,43 @@ def test_batched_matches_single_and_exits_early(fabric, run, panda):
     n = int(one.length)
     assert int(tr.length[0]) == n
     assert np.allclose(np.asarray(tr.q[0, :n]), np.asarray(one.q[:n]), atol=1e-4)
+
+
+def _sequences(fab, params, goals):
+    """Command sequences [mid_i, GOAL] as stacked params (P, 2, ...)."""
+    seq = lambda g: jax.tree.map(lambda *a: jnp.stack(a), fab.with_joint_goal(params, g), fab.with_joint_goal(params, GOAL))  # noqa: E731
+    return jax.tree.map(lambda *a: jnp.stack(a), *(seq(g) for g in goals))
+
+
+def test_population_matches_vmap_and_stops_when_enough_arrived(fabric):
+    """rollout_population == vmap(rollout_sequence); with enough=1 it stops at the first clean arrival."""
+    fab, params = fabric
+    mids = [READY + 0.5 * (GOAL - READY), jnp.asarray([-1.5, 0.5, 1.0, -1.0, 1.0, 2.5, -1.0]), GOAL + 0.2]
+    seqs, scene = _sequences(fab, params, mids), sc.empty(cuboids=1)
+    kw = dict(dt=0.01, steps=300)
+    one = jax.jit(jax.vmap(lambda s: rollout_sequence(fab, s, scene, READY, jnp.zeros(7), fab.reached, **kw)))(seqs)
+    pop = jax.jit(lambda s: rollout_population(fab, s, scene, READY, jnp.zeros(7), fab.reached, **kw))(seqs)
+    assert np.array_equal(np.asarray(one.length), np.asarray(pop.length))
+    assert np.allclose(np.asarray(one.q), np.asarray(pop.q), atol=1e-5)
+    first = int(np.argmin(np.where(np.asarray(one.reached), np.asarray(one.length), 10**6)))
+    early = jax.jit(lambda s: rollout_population(fab, s, scene, READY, jnp.zeros(7), fab.reached, enough=1, **kw))(seqs)
+    assert bool(early.reached[first]) and int(early.reached.sum()) < int(one.reached.sum())
+    assert int(jnp.max(early.length)) <= int(one.length[first]) + 25  # stopped at the chunk after the first arrival
+    stopped = ~np.asarray(early.reached)
+    assert np.all(np.asarray(early.segment_times)[stopped, -1] == pytest.approx(3.0))  # unfinished: charged the budget
+
+
+def test_patience_ends_a_segment_that_makes_no_progress(fabric, panda):
+    """A box around the hand at the command: the arm presses on it; with patience the segment
+    ends early and is charged t_max, and the next command runs from there."""
+    fab, params = fabric
+    hand = np.asarray(frame_pose(panda, GOAL, fab.goal_frame).translation())
+    scene = sc.from_dict({"obstacles": [{"type": "cuboid", "center": hand.tolist(), "size": [0.25, 0.25, 0.25]}]})
+    seqs = _sequences(fab, params, [GOAL])
+    dist = lambda p, q: jnp.linalg.norm(q - p["goal"]["target"])  # noqa: E731
+    kw = dict(dt=0.01, steps=500)
+    full = jax.jit(lambda s: rollout_population(fab, s, scene, READY, jnp.zeros(7), fab.reached, **kw))(seqs)
+    cut = jax.jit(lambda s: rollout_population(fab, s, scene, READY, jnp.zeros(7), fab.reached, patience=(dist, 0.5, 0.01), **kw))(seqs)
+    assert not bool(full.reached[0])  # trapped: the test needs a blocked command
+    assert int(cut.length[0]) < int(full.length[0]) // 2
+    assert np.allclose(np.asarray(cut.segment_times[0]), 5.0)  # both segments charged their budget

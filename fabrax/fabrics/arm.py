@@ -77,6 +77,10 @@ class ArmFabric(Fabric):
         rot = 2.0 * jnp.arctan2(jnp.linalg.norm(rel.wxyz[1:]), jnp.abs(rel.wxyz[0]))
         return joint, pos, rot
 
+    def joint_reached(self, params: Params, q: jax.Array, qd: jax.Array | None = None, tolerance: float | None = None) -> jax.Array:
+        """The joint-goal test alone (no kinematics): |q - q_goal|_2 within `tolerance` (default joint_tolerance)."""
+        return jnp.linalg.norm(q - params["goal"]["target"]) <= (self.joint_tolerance if tolerance is None else tolerance)
+
     def reached(self, params: Params, q: jax.Array, qd: jax.Array | None = None) -> jax.Array:
         """The goal test for time-to-goal: joint error within tolerance, or pose within position and orientation tolerance."""
         joint, pos, rot = self.goal_errors(params, q)

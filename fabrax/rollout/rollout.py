@@ -7,7 +7,8 @@ goal test holds or `steps` steps pass; its duration is t*_i (eq. 2). The last
 segment is the final goal. Steps run in chunks of a `lax.scan` inside a
 `lax.while_loop` that stops once the arm is done; under `jax.vmap` the loop
 runs until every arm is done (early exit for the batch) and finished arms
-hold still. All of it is one pure function: jit it, vmap it over arms, goals
+hold still. `rollout_population` runs many sequences from one start and may
+stop the whole population once enough of it has arrived. All of it is one pure function: jit it, vmap it over arms, goals
 and scenes.
 """
 
@@ -26,6 +27,7 @@ from fabrax.rollout.trajectory import Trajectory
 from fabrax.scene import FAR, Scene
 
 Reached = Callable[[Params, jax.Array, jax.Array], jax.Array]
+Distance = Callable[[Params, jax.Array], jax.Array]
 INTEGRATORS = ("euler", "second_order", "rk4")
 
 
@@ -72,6 +74,99 @@ class _Carry:
     t_goal: jax.Array
     seg_times: jax.Array
     clearance: jax.Array
+    best: jax.Array  # smallest distance to the current segment's command so far
+    since: jax.Array  # steps since `best` last fell by min_progress
+
+
+def _program(fabric, scene, q0, qd0, reached, m, *, dt, steps, integrator, limits, chunk, stop_at_goal, patience, via):
+    """(init, body, finish) of one arm's sequence rollout: init(params_seq) -> loop state; body advances
+    one chunk of `chunk` steps; finish turns the final loop state into a `Trajectory`."""
+    if integrator not in INTEGRATORS:
+        raise ValueError(f"integrator must be one of {INTEGRATORS}, got '{integrator}'")
+    total = m * steps
+    n_chunks = -(-total // chunk)
+    rows = 1 + n_chunks * chunk
+    dtype = q0.dtype
+
+    def step(params_seq, c: _Carry):
+        p = jax.tree.map(lambda a: a[c.seg], params_seq)
+        q, qd, qdd, clearance = integrate(fabric, p, scene, c.q, c.qd, dt, integrator, limits)
+        seg_t = c.seg_t + 1
+        last = c.seg == m - 1
+        hit = reached(p, q, qd) if via is None else jnp.where(last, reached(p, q, qd), via(p, q, qd))
+        if patience is None:
+            best, since = c.best, c.since
+        else:  # no progress toward the command for `patience` steps: charge the whole budget and move on
+            dist, wait, min_progress = patience[0](p, q), patience[1], patience[2]
+            better = dist < c.best - min_progress
+            best, since = jnp.where(better, dist, c.best), jnp.where(better, 0, c.since + 1)
+            seg_t = jnp.where((since >= wait) & ~hit, steps, seg_t)
+        seg_over = hit | (seg_t >= steps)
+        final_hit = last & hit
+        new = _Carry(
+            t=c.t + 1,
+            seg=jnp.where(seg_over & ~last, c.seg + 1, c.seg),
+            seg_t=jnp.where(seg_over & ~last, 0, seg_t),
+            q=q,
+            qd=qd,
+            done=last & ((stop_at_goal & hit) | (seg_t >= steps)),
+            reached=c.reached | final_hit,
+            t_goal=jnp.where(final_hit & ~c.reached, (c.t + 1) * dt, c.t_goal),
+            seg_times=jnp.where((jnp.arange(m) == c.seg) & seg_over, seg_t * dt, c.seg_times),
+            clearance=jnp.minimum(c.clearance, clearance),
+            best=jnp.where(seg_over, jnp.inf, best),
+            since=jnp.where(seg_over, 0, since),
+        )
+        new = jax.tree.map(lambda a, b: jnp.where(c.done, a, b), c, new)  # finished arms hold still
+        zero = jnp.zeros_like(qdd)
+        return new, (new.q, jnp.where(c.done, zero, new.qd), jnp.where(c.done, zero, qdd))
+
+    def init(params_seq):
+        buf = (
+            jnp.zeros((rows, q0.shape[0]), dtype).at[0].set(q0),
+            jnp.zeros((rows, q0.shape[0]), dtype).at[0].set(qd0),
+            jnp.zeros((rows, q0.shape[0]), dtype),
+        )
+        c0 = _Carry(
+            t=jnp.zeros((), jnp.int32),
+            seg=jnp.zeros((), jnp.int32),
+            seg_t=jnp.zeros((), jnp.int32),
+            q=q0,
+            qd=qd0,
+            done=jnp.zeros((), bool),
+            reached=jnp.zeros((), bool),
+            t_goal=jnp.asarray(total * dt, dtype),
+            seg_times=jnp.full((m,), steps * dt, dtype),
+            clearance=jnp.asarray(FAR, dtype),
+            best=jnp.asarray(jnp.inf, dtype),
+            since=jnp.zeros((), jnp.int32),
+        )
+        return jnp.zeros((), jnp.int32), c0, buf
+
+    def body(params_seq, state):
+        i, c, buf = state
+        c, (qs, qds, qdds) = jax.lax.scan(lambda c_, _: step(params_seq, c_), c, None, length=chunk)
+        buf = tuple(jax.lax.dynamic_update_slice_in_dim(b, x, 1 + i * chunk, axis=0) for b, x in zip(buf, (qs, qds, qdds)))
+        return i + 1, c, buf
+
+    def finish(state):
+        _, c, (qs, qds, qdds) = state
+        length = c.t + 1
+        valid = (jnp.arange(rows) < length)[:, None]
+        qs = jnp.where(valid, qs, c.q)[: total + 1]
+        qds = jnp.where(valid, qds, 0.0)[: total + 1]
+        qdds = jnp.where(valid, qdds, 0.0)[: total + 1]
+        return Trajectory(qs, qds, qdds, jnp.asarray(dt, dtype), length, c.reached, c.t_goal, c.seg_times, c.clearance)
+
+    return init, body, finish, n_chunks
+
+
+def _patience(patience, dt: float):
+    """(distance, seconds, min_progress) -> (distance, steps, min_progress)."""
+    if patience is None:
+        return None
+    distance, seconds, min_progress = patience
+    return distance, max(1, int(round(seconds / dt))), min_progress
 
 
 def rollout_sequence(
@@ -88,79 +183,93 @@ def rollout_sequence(
     limits: bool = True,
     chunk: int = 25,
     stop_at_goal: bool = True,
+    patience: tuple[Distance, float, float] | None = None,
+    via: Reached | None = None,
 ) -> Trajectory:
     """Integrate through every segment of `params_seq` (leading axis m); see the module docstring.
 
     steps: budget per segment (t_max = steps dt). The returned trajectory has
     m * steps + 1 rows; rows past `length` repeat the final state.
     With stop_at_goal=False the last segment runs its whole budget.
+    patience: (distance, seconds, min_progress): a segment whose `distance(params, q)` to its
+    command has not fallen by min_progress for `seconds` (an arm at rest or chattering against an
+    obstacle short of its command) ends there and is charged its whole budget (t*_i = t_max).
+    via: the test that ends an intermediate segment (default `reached`), e.g. a looser
+    tolerance so that the arm passes a via command without stopping at it.
     """
-    if integrator not in INTEGRATORS:
-        raise ValueError(f"integrator must be one of {INTEGRATORS}, got '{integrator}'")
     m = jax.tree.leaves(params_seq)[0].shape[0]
-    total = m * steps
-    n_chunks = -(-total // chunk)
-    dtype = q0.dtype
-
-    def step(c: _Carry, _):
-        p = jax.tree.map(lambda a: a[c.seg], params_seq)
-        q, qd, qdd, clearance = integrate(fabric, p, scene, c.q, c.qd, dt, integrator, limits)
-        seg_t = c.seg_t + 1
-        hit = reached(p, q, qd)
-        last = c.seg == m - 1
-        seg_over = hit | (seg_t >= steps)
-        final_hit = last & hit
-        new = _Carry(
-            t=c.t + 1,
-            seg=jnp.where(seg_over & ~last, c.seg + 1, c.seg),
-            seg_t=jnp.where(seg_over & ~last, 0, seg_t),
-            q=q,
-            qd=qd,
-            done=last & ((stop_at_goal & hit) | (seg_t >= steps)),
-            reached=c.reached | final_hit,
-            t_goal=jnp.where(final_hit & ~c.reached, (c.t + 1) * dt, c.t_goal),
-            seg_times=jnp.where((jnp.arange(m) == c.seg) & seg_over, seg_t * dt, c.seg_times),
-            clearance=jnp.minimum(c.clearance, clearance),
-        )
-        new = jax.tree.map(lambda a, b: jnp.where(c.done, a, b), c, new)  # finished arms hold still
-        zero = jnp.zeros_like(qdd)
-        return new, (new.q, jnp.where(c.done, zero, new.qd), jnp.where(c.done, zero, qdd))
-
-    def body(state):
-        i, c, buf = state
-        c, (qs, qds, qdds) = jax.lax.scan(step, c, None, length=chunk)
-        buf = tuple(jax.lax.dynamic_update_slice_in_dim(b, x, 1 + i * chunk, axis=0) for b, x in zip(buf, (qs, qds, qdds)))
-        return i + 1, c, buf
-
-    def cond(state):
-        i, c, _ = state
-        return (i < n_chunks) & ~c.done
-
-    rows = 1 + n_chunks * chunk
-    buf = (
-        jnp.zeros((rows, q0.shape[0]), dtype).at[0].set(q0),
-        jnp.zeros((rows, q0.shape[0]), dtype).at[0].set(qd0),
-        jnp.zeros((rows, q0.shape[0]), dtype),
+    init, body, finish, n_chunks = _program(
+        fabric,
+        scene,
+        q0,
+        qd0,
+        reached,
+        m,
+        dt=dt,
+        steps=steps,
+        integrator=integrator,
+        limits=limits,
+        chunk=chunk,
+        stop_at_goal=stop_at_goal,
+        patience=_patience(patience, dt),
+        via=via,
     )
-    c0 = _Carry(
-        t=jnp.zeros((), jnp.int32),
-        seg=jnp.zeros((), jnp.int32),
-        seg_t=jnp.zeros((), jnp.int32),
-        q=q0,
-        qd=qd0,
-        done=jnp.zeros((), bool),
-        reached=jnp.zeros((), bool),
-        t_goal=jnp.asarray(total * dt, dtype),
-        seg_times=jnp.full((m,), steps * dt, dtype),
-        clearance=jnp.asarray(FAR, dtype),
+    cond = lambda s: (s[0] < n_chunks) & ~s[1].done  # noqa: E731
+    return finish(jax.lax.while_loop(cond, lambda s: body(params_seq, s), init(params_seq)))
+
+
+def rollout_population(
+    fabric: Fabric,
+    params_seqs: Params,
+    scene: Scene,
+    q0: jax.Array,
+    qd0: jax.Array,
+    reached: Reached,
+    *,
+    enough: int | None = None,
+    dt: float = 0.01,
+    steps: int = 700,
+    integrator: str = "second_order",
+    limits: bool = True,
+    chunk: int = 25,
+    patience: tuple[Distance, float, float] | None = None,
+    via: Reached | None = None,
+) -> Trajectory:
+    """A population of command sequences (`params_seqs`, leading axes (P, m)) from one start in one scene.
+
+    The same as `jax.vmap(rollout_sequence)` except that the loop also stops,
+    at a chunk boundary, once `enough` arms have reached the final goal without
+    a collision: an optimiser that ranks candidates by time to goal then needs
+    no more (CMA-ES weighs only its best half positively). Arms still running
+    are returned as not reached, with their unfinished segments charged the
+    whole budget. enough=None runs every arm to its end. patience, via: as `rollout_sequence`.
+    """
+    m = jax.tree.leaves(params_seqs)[0].shape[1]
+    init, body, finish, n_chunks = _program(
+        fabric,
+        scene,
+        q0,
+        qd0,
+        reached,
+        m,
+        dt=dt,
+        steps=steps,
+        integrator=integrator,
+        limits=limits,
+        chunk=chunk,
+        stop_at_goal=True,
+        patience=_patience(patience, dt),
+        via=via,
     )
-    _, c, (qs, qds, qdds) = jax.lax.while_loop(cond, body, (jnp.zeros((), jnp.int32), c0, buf))
-    length = c.t + 1
-    valid = (jnp.arange(rows) < length)[:, None]
-    qs = jnp.where(valid, qs, c.q)[: total + 1]
-    qds = jnp.where(valid, qds, 0.0)[: total + 1]
-    qdds = jnp.where(valid, qdds, 0.0)[: total + 1]
-    return Trajectory(qs, qds, qdds, jnp.asarray(dt, dtype), length, c.reached, c.t_goal, c.seg_times, c.clearance)
+    enough = jax.tree.leaves(params_seqs)[0].shape[0] + 1 if enough is None else enough
+
+    def cond(s):
+        _, c, _ = s
+        clean = jnp.sum(c.reached & (c.clearance >= 0.0))
+        return (s[0][0] < n_chunks) & ~jnp.all(c.done) & (clean < enough)
+
+    state = jax.lax.while_loop(cond, lambda s: jax.vmap(body)(params_seqs, s), jax.vmap(init)(params_seqs))
+    return jax.vmap(finish)(state)
 
 
 def rollout(fabric: Fabric, params: Params, scene: Scene, q0, qd0, reached: Reached, **kwargs) -> Trajectory:

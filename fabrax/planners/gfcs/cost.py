@@ -19,7 +19,7 @@ import numpy as np
 from flax import struct
 
 from fabrax.fabrics.fabric import Params
-from fabrax.rollout.rollout import rollout_sequence
+from fabrax.rollout.rollout import rollout_population
 from fabrax.rollout.trajectory import Trajectory
 from fabrax.scene import COMMON_CAPACITY, Scene
 
@@ -44,6 +44,9 @@ class GFCOP:
         return cls(f32(p.start_q), f32(qd), f32(p.goal_q), p.scene.pad(**COMMON_CAPACITY))
 
 
+MIN_PROGRESS = 0.01  # rad: what counts as getting closer to a command (see `population_cost`'s patience)
+
+
 def to_commands(z: jax.Array, lower: jax.Array, upper: jax.Array) -> jax.Array:
     """Unconstrained z (..., n, dof) -> commands within the joint limits (clipped against float rounding)."""
     return jnp.clip(lower + (upper - lower) * jax.nn.sigmoid(z), lower, upper)
@@ -55,22 +58,53 @@ def to_unconstrained(q: jax.Array, lower: jax.Array, upper: jax.Array, eps: floa
     return jnp.log(u) - jnp.log1p(-u)
 
 
-def sequence_cost(
+def population_cost(
     fabric,
     params: Params,
     problem: GFCOP,
-    z: jax.Array,
+    zs: jax.Array,
     *,
     dt: float = 0.01,
     steps: int = 700,
     penalty: float = 100.0,
     collision_penalty: float = 100.0,
+    enough: int | None = None,
+    patience: float | None = None,
+    via_tolerance: float | None = None,
 ) -> tuple[jax.Array, Trajectory]:
-    """GFCOP cost of one candidate z (n, dof) and its trajectory."""
+    """GFCOP costs of candidates zs (P, n, dof) and their trajectories, rolled out together.
+
+    enough: stop the population once this many candidates reached the goal
+    without collision (`rollout_population`); the rest count as not reached.
+    patience: s: a segment that gets no closer (by MIN_PROGRESS rad) to its command for this long
+    ends, charged t_max: the arm is at rest or chattering against an obstacle (`rollout_sequence`).
+    via_tolerance: joint distance (rad, 2-norm) at which an intermediate command counts as passed
+    (default: the fabric's goal tolerance, i.e. the arm nearly stops at every command).
+    """
     robot = fabric.robot
-    commands = to_commands(z, robot.lower, robot.upper)
-    goals = jnp.concatenate([commands, problem.goal_q[None]], axis=0)
-    params_seq = jax.vmap(lambda g: fabric.with_joint_goal(params, g))(goals)
-    traj = rollout_sequence(fabric, params_seq, problem.scene, problem.start_q, problem.start_qd, fabric.reached, dt=dt, steps=steps)
-    cost = jnp.sum(traj.segment_times) + penalty * (~traj.reached) + collision_penalty * (traj.min_clearance < 0.0)
-    return cost, traj
+    commands = to_commands(zs, robot.lower, robot.upper)
+    goals = jnp.concatenate([commands, jnp.broadcast_to(problem.goal_q, (zs.shape[0], 1, robot.dof))], axis=1)
+    params_seqs = jax.vmap(jax.vmap(lambda g: fabric.with_joint_goal(params, g)))(goals)
+    wait = None if patience is None else (lambda p, q: jnp.linalg.norm(q - p["goal"]["target"]), patience, MIN_PROGRESS)
+    via = None if via_tolerance is None else lambda p, q, qd: fabric.joint_reached(p, q, qd, via_tolerance)
+    trajs = rollout_population(
+        fabric,
+        params_seqs,
+        problem.scene,
+        problem.start_q,
+        problem.start_qd,
+        fabric.joint_reached,
+        enough=enough,
+        patience=wait,
+        via=via,
+        dt=dt,
+        steps=steps,
+    )
+    costs = jnp.sum(trajs.segment_times, axis=-1) + penalty * (~trajs.reached) + collision_penalty * (trajs.min_clearance < 0.0)
+    return costs, trajs
+
+
+def sequence_cost(fabric, params: Params, problem: GFCOP, z: jax.Array, **kwargs) -> tuple[jax.Array, Trajectory]:
+    """GFCOP cost of one candidate z (n, dof) and its trajectory (keywords as `population_cost`)."""
+    costs, trajs = population_cost(fabric, params, problem, z[None], **kwargs)
+    return costs[0], jax.tree.map(lambda a: a[0], trajs)

@@ -11,7 +11,6 @@ benchmark can report "1 b" and "5 b" from one run.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import time
 
 import jax
@@ -20,7 +19,7 @@ import numpy as np
 from evosax.algorithms import CMA_ES
 
 from fabrax.fabrics.fabric import Params
-from fabrax.planners.gfcs.cost import GFCOP, sequence_cost, to_commands
+from fabrax.planners.gfcs.cost import GFCOP, population_cost, to_commands
 from fabrax.rollout.trajectory import Trajectory
 
 
@@ -35,6 +34,13 @@ class GFCSConfig:
     t_max: float = 7.0  # per command
     penalty: float = 100.0  # M: final goal not reached
     collision_penalty: float = 100.0
+    via_tolerance: float | None = None  # rad: an intermediate command counts as passed within this (None: the goal tolerance)
+    patience: float | None = 1.0  # s without progress toward a command ends its segment, charged t_max (None: off)
+    stop_after: float | None = 0.5  # stop a batch once this fraction of it arrived cleanly (None: run all to the end)
+
+    @property
+    def enough(self) -> int | None:
+        return None if self.stop_after is None else max(self.top_m, int(round(self.stop_after * self.population)))
 
     @property
     def steps(self) -> int:
@@ -60,10 +66,19 @@ def uniform_sampler(key: jax.Array, robot, population: int, n_commands: int) -> 
 
 
 def _evaluate(fabric, params: Params, problem: GFCOP, pop: jax.Array, cfg: GFCSConfig):
-    cost_fn = functools.partial(
-        sequence_cost, fabric, params, problem, dt=cfg.dt, steps=cfg.steps, penalty=cfg.penalty, collision_penalty=cfg.collision_penalty
+    costs, trajs = population_cost(
+        fabric,
+        params,
+        problem,
+        pop,
+        dt=cfg.dt,
+        steps=cfg.steps,
+        penalty=cfg.penalty,
+        collision_penalty=cfg.collision_penalty,
+        enough=cfg.enough,
+        patience=cfg.patience,
+        via_tolerance=cfg.via_tolerance,
     )
-    costs, trajs = jax.vmap(cost_fn)(pop)
     k = jnp.argmin(costs)
     return costs, jax.tree.map(lambda a: a[k], trajs)
 
