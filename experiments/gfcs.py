@@ -54,11 +54,13 @@ def main(dcfg: DictConfig) -> None:
     ss_cfg = SelfSupConfig(**{**ss, "sgld": SGLDConfig(**ss["sgld"]), "seed": cfg["seed"]})
     enc = Encoding(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg["encoding"].items()})
 
-    train = [p for p in problems_for(cfg, robot, "train", cfg["train_limit"]) if p.valid]
-    print(f"[gfcs] {cfg['class_name']}: learning on {len(train)} train problems, {ss_cfg.passes} passes -> {out}")
-    t0 = time.perf_counter()
-    learner = learn(fabric, params, train, gfcs_cfg, ss_cfg, out / "sampler.msgpack", enc, log=lambda s: print("[gfcs]", s, flush=True))
-    learn_s = time.perf_counter() - t0
+    learner, learn_s = None, 0.0
+    if "gfcs_learned" in cfg["evaluate"]:
+        train = [p for p in problems_for(cfg, robot, "train", cfg["train_limit"]) if p.valid]
+        print(f"[gfcs] {cfg['class_name']}: learning on {len(train)} train problems, {ss_cfg.passes} passes -> {out}")
+        t0 = time.perf_counter()
+        learner = learn(fabric, params, train, gfcs_cfg, ss_cfg, out / "sampler.msgpack", enc, log=lambda s: print("[gfcs]", s, flush=True))
+        learn_s = time.perf_counter() - t0
 
     test = problems_for(cfg, robot, "test", cfg["test_limit"])
     rows = []
@@ -69,7 +71,7 @@ def main(dcfg: DictConfig) -> None:
     meta = {
         "config": cfg,
         "learn_s": learn_s,
-        "losses": learner.losses,
+        "losses": learner.losses if learner else [],
         "gfcs": dataclasses.asdict(gfcs_cfg),
         "versions": {"python": platform.python_version(), "jax": jax.__version__},
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
