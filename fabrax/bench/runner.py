@@ -2,7 +2,7 @@
 
 Outputs in the run directory: `results.json` (one row per problem: `problem`,
 `class`, `method`, `valid_problem`, the metrics of `metrics.evaluate`,
-`plan_time_s`, `compile_s`), `summary.md` (per class, like gfcs_paper Table I)
+`plan_time_s`, `compile_s`), `paths.npz` (the joint paths, for `fabrax view results`), `summary.md` (per class, like gfcs_paper Table I)
 and PNG plots (success per class, end-effector path lengths).
 """
 
@@ -52,7 +52,8 @@ def run(
             row = {"problem": p.name, "class": p.kind, "method": name, "valid_problem": p.valid, "invalid_reason": p.reason}
             if p.valid:
                 row.update(evaluate(robot, p, sol.q, sol.dt, goal=goal, frame=frame, margin=margin))
-                row.update({"plan_time_s": sol.plan_time_s, "compile_s": sol.compile_s, "info": sol.info})
+                row.update({"plan_time_s": sol.plan_time_s, "compile_s": sol.compile_s, "dt": sol.dt, "info": sol.info})
+                row["path"] = np.asarray(sol.q, np.float32)  # written to paths.npz, not results.json
             rows.append(row)
     return rows
 
@@ -81,9 +82,13 @@ def summary_table(rows: list[dict]) -> str:
 
 
 def write(rows: list[dict], out: Path, meta: dict | None = None) -> None:
-    """results.json, summary.md and plots in `out`."""
+    """results.json, paths.npz (every motion, keyed 'method|problem'), summary.md and plots in `out`."""
     out.mkdir(parents=True, exist_ok=True)
-    (out / "results.json").write_text(json.dumps({"meta": meta or {}, "rows": rows}, indent=1, default=_jsonable))
+    paths = {f"{r['method']}|{r['problem']}": r["path"] for r in rows if "path" in r}
+    if paths:
+        np.savez_compressed(out / "paths.npz", **paths)
+    plain = [{k: v for k, v in r.items() if k != "path"} for r in rows]
+    (out / "results.json").write_text(json.dumps({"meta": meta or {}, "rows": plain}, indent=1, default=_jsonable))
     (out / "summary.md").write_text(summary_table(rows))
     plots(rows, out)
 

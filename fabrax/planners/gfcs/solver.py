@@ -83,9 +83,25 @@ def _evaluate(fabric, params: Params, problem: GFCOP, pop: jax.Array, cfg: GFCSC
     return costs, jax.tree.map(lambda a: a[k], trajs)
 
 
+class Compiled:
+    """A jitted function compiled ahead of time once per argument signature (shapes and dtypes), so
+    that solving many problems of one padded size compiles once and the compile time is measurable."""
+
+    def __init__(self, fn):
+        self.fn, self.cache = fn, {}
+
+    def get(self, *args):
+        """(executable, output shapes) for these arguments' signature."""
+        leaves, tree = jax.tree.flatten(args)
+        key = (tree, tuple((tuple(a.shape), str(a.dtype)) for a in leaves))
+        if key not in self.cache:
+            self.cache[key] = (self.fn.lower(*args).compile(), jax.eval_shape(self.fn, *args))
+        return self.cache[key]
+
+
 def make_step(fabric, params: Params, cfg: GFCSConfig):
-    """(first, step): jitted batch functions. first(problem, samples, key) evaluates the warm-start
-    samples and initialises CMA-ES from them; step(problem, state, key) asks, evaluates and tells."""
+    """(first, step): the batch functions, each a `Compiled`. first(problem, samples, key) evaluates the
+    warm-start samples and initialises CMA-ES from them; step(problem, state, key) asks, evaluates and tells."""
     dof = fabric.robot.dof
     es = CMA_ES(population_size=cfg.population, solution=jnp.zeros((cfg.n_commands, dof)))
     es_params = es.default_params.replace(std_init=cfg.std_init)
@@ -106,7 +122,7 @@ def make_step(fabric, params: Params, cfg: GFCSConfig):
         state, _ = es.tell(k_tell, pop, costs, state, es_params)
         return state, pop, costs, best
 
-    return first, step
+    return Compiled(first), Compiled(step)
 
 
 def solve(fabric, params: Params, problem: GFCOP, key: jax.Array, cfg: GFCSConfig = GFCSConfig(), samples=None, steps_fns=None) -> GFCSResult:
@@ -121,9 +137,8 @@ def solve(fabric, params: Params, problem: GFCOP, key: jax.Array, cfg: GFCSConfi
         raise ValueError(f"samples: expected shape {(cfg.population, cfg.n_commands, robot.dof)}, got {samples.shape}")
     keys = jax.random.split(key, cfg.batches)
     t0 = time.perf_counter()
-    first_c = first.lower(problem, samples, keys[0]).compile()
-    state0 = jax.eval_shape(first, problem, samples, keys[0])[0]
-    step_c = step.lower(problem, state0, keys[0]).compile() if cfg.batches > 1 else None
+    first_c, shapes = first.get(problem, samples, keys[0])
+    step_c = step.get(problem, shapes[0], keys[0])[0] if cfg.batches > 1 else None
     compile_s = time.perf_counter() - t0
 
     all_z, all_cost, per_batch = [], [], []

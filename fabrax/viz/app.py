@@ -1,0 +1,262 @@
+"""The viewer's modes: a problem with a played-back trajectory, live fabric control, and a
+benchmark results browser. Each builds on one `Viewer` (a viser server plus the robot)."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from fabrax import config
+from fabrax.problems.problem import Problem
+from fabrax.robot.kinematics import frame_path, frame_pose
+from fabrax.viz.robot_view import RobotView, visual_urdf
+from fabrax.viz.scene_view import draw_scene
+
+GOAL = (80, 200, 120)
+COMMAND = (230, 200, 60)
+PATHS = [(40, 110, 230), (220, 60, 60), (60, 170, 80), (150, 80, 200), (240, 150, 30), (30, 170, 190)]
+
+
+class Viewer:
+    """A viser server showing one robot; GUI toggles for its collision spheres."""
+
+    def __init__(self, robot_name: str = "panda", host: str = "127.0.0.1", port: int = 8080, frame: str | None = None):
+        import viser
+
+        self.robot_cfg = config.load("robot", robot_name)
+        self.robot = config.load_robot(robot_name)
+        self.frame = frame or ("panda_hand" if "panda_hand" in self.robot.frame_names else self.robot.frame_names[-1])
+        self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self.server.scene.set_up_direction("+z")
+        self.server.initial_camera.position = (1.6, -1.3, 1.1)
+        self.server.initial_camera.look_at = (0.35, 0.0, 0.35)
+        self.server.scene.add_grid("/grid", width=2.0, height=2.0, cell_size=0.1, position=(0.0, 0.0, -0.001))
+        self._urdf = visual_urdf(self.robot_cfg)
+        self.arm = RobotView(self.server, self.robot, self.robot_cfg, "/robot", urdf=self._urdf)
+        self.arm.update(self.robot_cfg.get("default_q") or np.zeros(self.robot.dof))
+        spheres = self.server.gui.add_checkbox("collision spheres", initial_value=False)
+        spheres.on_update(lambda _: self.arm.show_spheres(spheres.value))
+        self.nodes: list = []
+        self.ghosts: list[RobotView] = []
+        self._stop = threading.Event()  # ends the playback thread of what `clear` removes
+
+    @property
+    def port(self) -> int:
+        return self.server.get_port()
+
+    def ghost(self, q, name: str, color=GOAL, opacity: float = 0.35) -> RobotView:
+        g = RobotView(self.server, self.robot, self.robot_cfg, name, color=color, opacity=opacity, urdf=self._urdf)
+        g.update(q)
+        self.ghosts.append(g)
+        return g
+
+    def close(self) -> None:
+        """Stop playback and live threads, then the server."""
+        self._stop.set()
+        self.server.stop()
+
+    def clear(self) -> None:
+        self._stop.set()
+        self._stop = threading.Event()
+        for n in self.nodes:
+            n.remove()
+        for g in self.ghosts:
+            g.remove()
+        self.nodes, self.ghosts = [], []
+
+    def show_problem(self, problem: Problem) -> None:
+        """Scene, start pose and goal: a ghost arm for a joint goal, a frame for a pose goal."""
+        self.nodes += draw_scene(self.server, problem.scene, "/scene")
+        self.arm.update(problem.start_q)
+        if problem.goal_q is not None:
+            self.ghost(problem.goal_q, "/goal")
+        if problem.goal_pose is not None:
+            pos, quat = problem.goal_pose
+            self.nodes.append(self.server.scene.add_frame("/goal_pose", axes_length=0.1, axes_radius=0.005, position=tuple(pos), wxyz=tuple(quat)))
+
+    def ee_line(self, q: np.ndarray, name: str, color) -> None:
+        pos = np.asarray(frame_path(self.robot, jnp.asarray(q, jnp.float32), self.frame)[0])
+        seg = np.stack([pos[:-1], pos[1:]], axis=1)
+        self.nodes.append(self.server.scene.add_line_segments(name, points=seg, colors=color, thickness=0.004))
+
+    def show_commands(self, commands: np.ndarray) -> None:
+        """GFCS commands: a ghost arm and a sphere at its end-effector for each."""
+        for i, c in enumerate(np.atleast_2d(commands)):
+            self.ghost(c, f"/commands/{i}", color=COMMAND, opacity=0.25)
+            p = np.asarray(frame_pose(self.robot, jnp.asarray(c, jnp.float32), self.frame).translation())
+            self.nodes.append(self.server.scene.add_icosphere(f"/commands/ee_{i}", radius=0.02, color=COMMAND, position=tuple(p)))
+
+    def player(self, arms: list[tuple[RobotView, np.ndarray]], dt: float) -> None:
+        """Time slider and play/pause for one or more arms, each with its own path (T_i, dof)."""
+        steps = max(len(q) for _, q in arms)
+        slider = self.server.gui.add_slider("time (s)", min=0.0, max=round((steps - 1) * dt, 2), step=dt, initial_value=0.0)
+        play = self.server.gui.add_checkbox("play", initial_value=True)
+        self.nodes += [slider, play]
+
+        def pose(_=None):
+            k = int(round(slider.value / dt))
+            for view, q in arms:
+                view.update(q[min(k, len(q) - 1)])
+
+        slider.on_update(pose)
+        pose()
+
+        stop = self._stop
+
+        def loop():
+            while not stop.wait(1 / 30):
+                if play.value:
+                    t = slider.value + 1 / 30
+                    slider.value = 0.0 if t > slider.max else round(t, 2)
+
+        threading.Thread(target=loop, daemon=True).start()
+
+
+def view_demo(viewer: Viewer, fabric_name: str = "panda", dt: float = 0.01, t_max: float = 7.0) -> dict:
+    """The built-in shelf problem, solved by the fabric and played back."""
+    from fabrax.problems import batch
+    from fabrax.problems.generators import demo_problem
+    from fabrax.rollout import reach
+
+    fabric, params = config.load_fabric(viewer.robot, fabric_name)
+    problem = demo_problem(viewer.robot)
+    tr = reach(fabric, params, batch([problem]), dt=dt, steps=int(round(t_max / dt)))
+    q = np.asarray(tr.q[0, : int(tr.length[0])])
+    viewer.show_problem(problem)
+    viewer.ee_line(q, "/path", PATHS[0])
+    viewer.player([(viewer.arm, q)], dt)
+    return {"problem": problem.name, "reached": bool(tr.reached[0]), "steps": len(q)}
+
+
+def live(viewer: Viewer, fabric_name: str = "panda", dt: float = 0.01, problem: Problem | None = None) -> dict:
+    """The fabric runs in real time; drag the goal gizmo and the obstacles and the arm reacts.
+
+    Returns a dict that the control thread keeps current: steps taken and the achieved rate (Hz).
+    """
+    from fabrax.problems.generators import demo_problem
+    from fabrax.rollout import integrate
+    from fabrax.scene import COMMON_CAPACITY, from_dict, to_dict
+
+    robot = viewer.robot
+    fabric, params = config.load_fabric(robot, fabric_name)
+    problem = problem or demo_problem(robot)
+    data = to_dict(problem.scene)
+    goal_q = problem.goal_q if problem.goal_q is not None else problem.start_q
+    start = frame_pose(robot, jnp.asarray(goal_q, jnp.float32), viewer.frame)
+    gizmo = viewer.server.scene.add_transform_controls(
+        "/goal", scale=0.2, position=tuple(np.asarray(start.translation())), wxyz=tuple(np.asarray(start.rotation().wxyz))
+    )
+    movers = []
+    for i, o in enumerate(data["obstacles"]):
+        c = viewer.server.scene.add_transform_controls(f"/obstacles/{i}", scale=0.12, disable_rotations=True, position=tuple(o["center"]))
+        movers.append(c)
+    handles = draw_scene(viewer.server, data, "/obstacles_geom")
+    viewer.nodes += [gizmo, *movers, *handles]
+    rate = viewer.server.gui.add_markdown("starting ...")
+    viewer.nodes.append(rate)
+
+    step = jax.jit(lambda p, s, q, qd: integrate(fabric, p, s, q, qd, dt)[:2])
+    aim = jax.jit(lambda pos, quat: fabric.with_pose_goal(params, pos, quat))
+    state = {"steps": 0, "hz": 0.0, "running": True, "q": np.asarray(problem.start_q)}
+
+    def scene_now():
+        for o, m, h in zip(data["obstacles"], movers, handles):
+            o["center"] = [float(x) for x in m.position]
+            h.position = m.position
+        return from_dict(data).pad(**COMMON_CAPACITY)
+
+    stop = viewer._stop
+
+    def loop():
+        q, qd = jnp.asarray(problem.start_q, jnp.float32), jnp.zeros(robot.dof, jnp.float32)
+        t_last, n_last = time.perf_counter(), 0
+        next_t = time.perf_counter()
+        while state["running"] and not stop.is_set():
+            p = aim(jnp.asarray(gizmo.position, jnp.float32), jnp.asarray(gizmo.wxyz, jnp.float32))
+            q, qd = step(p, scene_now(), q, qd)
+            state["q"] = np.asarray(q)
+            viewer.arm.update(state["q"])
+            state["steps"] += 1
+            now = time.perf_counter()
+            if now - t_last >= 1.0:
+                state["hz"] = (state["steps"] - n_last) / (now - t_last)
+                rate.content = f"fabric: {state['hz']:.0f} Hz (real time: {1 / dt:.0f} Hz)"
+                t_last, n_last = now, state["steps"]
+            next_t += dt
+            time.sleep(max(0.0, next_t - time.perf_counter()))
+
+    threading.Thread(target=loop, daemon=True).start()
+    return state
+
+
+def load_results(run_dir: str | Path) -> tuple[dict, list[dict], dict]:
+    """meta, rows and paths {method|problem: q} of a `fabrax bench` (or experiments) run directory."""
+    run_dir = Path(run_dir)
+    f = run_dir / "results.json"
+    if not f.exists():
+        raise FileNotFoundError(f"{f}: not a benchmark run directory (no results.json)")
+    data = json.loads(f.read_text())
+    paths = {}
+    if (run_dir / "paths.npz").exists():
+        with np.load(run_dir / "paths.npz") as z:
+            paths = {k: z[k] for k in z.files}
+    return data["meta"], data["rows"], paths
+
+
+def problems_of(meta: dict, robot) -> dict[str, Problem]:
+    """The problems a run was made on, rebuilt from its resolved config."""
+    from fabrax.bench.cli import load_problems
+
+    cfg = dict(meta["config"])
+    if "classes" not in cfg:  # experiments/gfcs.py: one class, test split
+        cfg.update(classes=[cfg["class_name"]], split="test", limit=cfg.get("test_limit"))
+    return {p.name: p for p in load_problems(cfg, robot)}
+
+
+def results_browser(viewer: Viewer, run_dirs: list[str | Path]) -> dict:
+    """Step through the problems of one or more runs; every method's motion side by side."""
+    rows, paths, problems = [], {}, {}
+    for d in run_dirs:
+        meta, r, p = load_results(d)
+        rows += r
+        paths.update(p)
+        problems.update(problems_of(meta, viewer.robot))
+    names = sorted({r["problem"] for r in rows if r["problem"] in problems})
+    if not names:
+        raise ValueError("no problems of these runs could be loaded (is FABRAX_DATA set?)")
+    methods = sorted({r["method"] for r in rows})
+    pick = viewer.server.gui.add_dropdown("problem", options=names, initial_value=names[0])
+    table = viewer.server.gui.add_markdown("")
+    state = {"problem": None}
+
+    def show(_=None):
+        viewer.clear()
+        p = problems[pick.value]
+        viewer.show_problem(p)
+        arms, lines = [], ["| method | success | EE len (m) | time (s) |", "|---|---|---|---|"]
+        for i, m in enumerate(methods):
+            row = next((r for r in rows if r["problem"] == p.name and r["method"] == m), None)
+            if row is None or not row.get("valid_problem", True):
+                continue
+            lines.append(f"| {m} | {row['success']} | {row['ee_length']:.2f} | {row['duration_s']:.2f} |")
+            q = paths.get(f"{m}|{p.name}")
+            if q is None:
+                continue
+            color = PATHS[i % len(PATHS)]
+            arms.append((viewer.ghost(q[0], f"/methods/{i}", color=color, opacity=0.6), q))
+            viewer.ee_line(q, f"/methods/path_{i}", color)
+            if m.startswith("gfcs") and "commands" in row.get("info", {}):
+                viewer.show_commands(np.asarray(row["info"]["commands"]))
+        table.content = "\n".join(lines)
+        viewer.player(arms or [(viewer.arm, np.asarray([p.start_q]))], float(rows[0].get("dt", 0.01)))
+        state["problem"] = p.name
+
+    pick.on_update(show)
+    show()
+    return state

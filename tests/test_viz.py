@@ -1,0 +1,96 @@
+"""The browser viewer: scene drawn in a real headless Chromium, live fabric control, results browser."""
+
+import shutil
+import socket
+import time
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from fabrax.robot.kinematics import frame_pose
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def viewer():
+    from fabrax.viz.app import Viewer
+
+    v = Viewer("panda", port=_free_port())
+    yield v
+    v.close()
+
+
+def _wait(cond, timeout: float = 60.0) -> bool:
+    end = time.time() + timeout
+    while time.time() < end:
+        if cond():
+            return True
+        time.sleep(0.2)
+    return False
+
+
+@pytest.mark.browser
+@pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium (apt-get install chromium); .ci/run installs it")
+def test_demo_is_drawn_in_headless_chromium(viewer, tmp_path):
+    playwright = pytest.importorskip("playwright.sync_api", reason="needs playwright (the dev extra)")
+    from fabrax.viz.app import view_demo
+
+    info = view_demo(viewer)
+    assert info["reached"]
+    names = {getattr(n, "name", "") for n in viewer.nodes}
+    assert "/scene/cuboid_0" in names and "/path" in names and len(viewer.ghosts) == 1  # shelf, EE path, goal ghost
+    args = ["--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader", "--use-angle=swiftshader"]
+    args += ["--disable-background-networking", "--disable-component-update", "--disable-sync", "--no-first-run"]
+    with playwright.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=args)
+        page = browser.new_page(viewport={"width": 800, "height": 600})
+        page.goto(f"http://127.0.0.1:{viewer.port}")
+        assert _wait(lambda: len(viewer.server.get_clients()) >= 1), "the page never connected to the viewer"
+        page.wait_for_selector("text=Connected", timeout=60_000)
+        time.sleep(4.0)  # meshes arrive and render
+        shot = tmp_path / "viewer.png"
+        page.screenshot(path=str(shot))
+        browser.close()
+    import matplotlib.image
+
+    img = (matplotlib.image.imread(shot)[..., :3] * 255).astype(int)
+    assert img.std() > 10  # not a blank page
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    shelf = (r > 150) & (g > 70) & (g < 170) & (b < 110) & (r - b > 80)  # the obstacle colour, shaded
+    assert shelf.mean() > 0.005, f"obstacle pixels {shelf.mean():.4f}: the scene was not drawn"
+
+
+def test_live_mode_follows_the_dragged_goal(viewer):
+    """Move the goal gizmo as a user's drag would: the fabric brings the hand to it."""
+    from fabrax.viz.app import live
+
+    state = live(viewer)
+    gizmo = next(n for n in viewer.nodes if getattr(n, "name", "") == "/goal")
+    target = np.array([0.45, 0.25, 0.45])
+    gizmo.position = target
+    assert _wait(lambda: state["steps"] > 400, timeout=120), "the live loop did not run"
+    state["running"] = False
+    hand = np.asarray(frame_pose(viewer.robot, jnp.asarray(state["q"], jnp.float32), viewer.frame).translation())
+    assert np.linalg.norm(hand - target) < 0.05
+
+
+def test_results_browser_shows_every_method(viewer, tmp_path, shared_data):
+    from fabrax.bench import cli
+    from fabrax.viz.app import load_results, results_browser
+
+    assert cli.main(["method=gf", "problems=mbm", "classes=[box]", "limit=1", f"out={tmp_path}", "progress=false"]) == 0
+    _, rows, paths = load_results(tmp_path)
+    assert set(paths) == {f"gf|{r['problem']}" for r in rows} and paths["gf|box/0051"].shape[1] == 7
+    state = results_browser(viewer, [tmp_path])
+    assert state["problem"] == "box/0051"
+    assert len(viewer.ghosts) == 2  # the goal and the gf motion
+    with pytest.raises(FileNotFoundError, match="results.json"):
+        load_results(tmp_path / "missing")
