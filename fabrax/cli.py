@@ -7,6 +7,7 @@ import sys
 COMMANDS = {
     "demo": ("fabrax.demo", "run the Panda fabric on the built-in shelf problem"),
     "bench": ("fabrax.bench.cli", "benchmark a method on MotionBenchMaker or generated problems (hydra overrides)"),
+    "collect": ("fabrax.bench.collect", "one table of success and EE length over a sweep's run directories"),
     "view": ("fabrax.viz.cli", "browser viewer: demo playback, live fabric control, benchmark results"),
 }
 

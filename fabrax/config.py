@@ -43,10 +43,11 @@ def load_robot(name: str = "panda"):
     return build_robot(load("robot", name))
 
 
-def load_fabric(robot, name: str = "panda"):
-    """An `ArmFabric` and its default parameters from configs/fabric/<name>.yaml."""
+def load_fabric(robot, name: str | dict = "panda"):
+    """An `ArmFabric` and its default parameters from configs/fabric/<name>.yaml, or from an already
+    composed fabric config (a dict, e.g. the `fabric` group of a hydra config with overrides)."""
     from fabrax.fabrics import build_arm_fabric
 
     posture = load("robot", robot.name).get("default_q") if (config_dir() / "robot" / f"{robot.name}.yaml").exists() else None
-    fabric = build_arm_fabric(robot, load("fabric", name), posture=posture)
+    fabric = build_arm_fabric(robot, load("fabric", name) if isinstance(name, str) else name, posture=posture)
     return fabric, fabric.init()

@@ -1,6 +1,9 @@
 """`fabrax bench key=value ...`: run one method on one problem set (configs/bench.yaml, hydra overrides).
 
 fabrax bench method=gf problems=mbm classes=[box] split=test limit=5 out=bench_out/gf seed=0
+fabrax bench method=gf fabric.terms.goal.k_force=3.0 ...      # any fabric gain
+
+Sweeps (hydra multirun, one run directory per job): experiments/bench.py -m ...; see README.
 """
 
 from __future__ import annotations
@@ -68,12 +71,9 @@ def make_method(cfg: dict, robot):
     raise SystemExit(f"fabrax bench: unknown method type '{kind}'")
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if argv and argv[0] in ("-h", "--help"):
-        print(__doc__)
-        return 0
-    cfg = compose(argv)
+def run_bench(cfg: dict, out: Path) -> list[dict]:
+    """Run the configured method on the configured problems; write results.json, paths.npz,
+    summary.md and plots to `out`. Returns the rows."""
     import jax
 
     from fabrax.bench.metrics import Goal
@@ -85,19 +85,35 @@ def main(argv: list[str] | None = None) -> int:
     method = make_method(cfg, robot)
     t0 = time.perf_counter()
     rows = run(method, robot, problems, goal=Goal(**cfg["goal"]), margin=cfg["margin"], frame=cfg["frame"], progress=cfg["progress"])
-    out = Path(cfg["out"])
     meta = {
         "config": cfg,
         "robot": robot_name,
+        "seed": cfg["seed"],
         "wall_s": time.perf_counter() - t0,
-        "versions": {"python": platform.python_version(), "jax": jax.__version__},
+        "versions": {"python": platform.python_version(), "jax": jax.__version__, "fabrax": _version()},
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
-        "argv": argv,
+        "argv": sys.argv[1:],
     }
     write(rows, out, meta)
     print(summary_table(rows))
     print(f"results: {out / 'results.json'}")
     sys.stdout.flush()
+    return rows
+
+
+def _version() -> str:
+    from importlib.metadata import version
+
+    return version("fabrax")
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in ("-h", "--help"):
+        print(__doc__)
+        return 0
+    cfg = compose(argv)
+    run_bench(cfg, Path(cfg["out"]))
     if "ompl" in sys.modules:
         os._exit(0)  # OMPL 1.7.0's Python module crashes while the interpreter shuts down
     return 0
