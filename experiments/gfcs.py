@@ -85,6 +85,7 @@ def main(dcfg: DictConfig) -> None:
 
 def reactive(cfg: dict, robot, fabric, params, problems, rows) -> dict:
     """gfcs_paper §V: block each solved motion with new cuboids, re-execute the same commands."""
+    import jax
     import jax.numpy as jnp
     import numpy as np
 
@@ -93,6 +94,8 @@ def reactive(cfg: dict, robot, fabric, params, problems, rows) -> dict:
     from fabrax.planners.gfcs.cost import GFCOP
     from fabrax.planners.gfcs.reactive import blocking_cuboids, reexecute, with_obstacles
 
+    steps = int(round(cfg["t_max"] / cfg["dt"]))
+    execute = jax.jit(lambda prob, commands, scene: reexecute(fabric, params, prob, commands, scene, cfg["dt"], steps))  # compiled once
     by_name = {p.name: p for p in problems}
     method = cfg["reactive"]["method"]
     rng = np.random.default_rng(cfg["seed"])
@@ -103,7 +106,7 @@ def reactive(cfg: dict, robot, fabric, params, problems, rows) -> dict:
         p = by_name[row["problem"]]
         prob = GFCOP.from_problem(p)
         commands = np.asarray(row["info"]["commands"])
-        old = reexecute(fabric, params, prob, jnp.asarray(commands), prob.scene, cfg["dt"], int(round(cfg["t_max"] / cfg["dt"])))
+        old = execute(prob, jnp.asarray(commands, jnp.float32), prob.scene)
         q_old = np.asarray(old.q[: int(old.length)])
         try:
             new = blocking_cuboids(robot, q_old, p.start_q, p.goal_q, rng, n=cfg["reactive"]["n_obstacles"])
@@ -111,7 +114,7 @@ def reactive(cfg: dict, robot, fabric, params, problems, rows) -> dict:
             continue
         scene = with_obstacles(p.scene, new)
         blocked = check_path(robot, scene, q_old).collision
-        tr = reexecute(fabric, params, prob, jnp.asarray(commands), scene, cfg["dt"], int(round(cfg["t_max"] / cfg["dt"])))
+        tr = execute(prob, jnp.asarray(commands, jnp.float32), scene)
         m = evaluate(robot, dataclasses.replace(p, scene=scene), np.asarray(tr.q[: int(tr.length)]), cfg["dt"], goal=Goal(**cfg["goal"]))
         out.append(
             {"problem": p.name, "old_path_blocked": blocked, "collision_free": not m["collision"], "reached": m["reached"], "success": m["success"]}
