@@ -39,10 +39,8 @@ def main(dcfg: DictConfig) -> None:
     from fabrax.bench.methods import GFCSMethod
     from fabrax.bench.metrics import Goal
     from fabrax.bench.runner import run, summary_table, write
-    from fabrax.planners.gfcs.ebm import SGLDConfig
-    from fabrax.planners.gfcs.encoding import Encoding
-    from fabrax.planners.gfcs.selfsup import SelfSupConfig
     from fabrax.planners.gfcs.selfsup import run as learn
+    from fabrax.planners.gfcs.selfsup import settings
 
     cfg = OmegaConf.to_container(dcfg, resolve=True)
     out = Path(hydra.core.hydra_config.HydraConfig.get().runtime.output_dir)
@@ -50,9 +48,7 @@ def main(dcfg: DictConfig) -> None:
     fabric, params = config.load_fabric(robot, cfg["fabric"])
     m = dict(cfg["method"])
     gfcs_cfg = gfcs_config(m, cfg)
-    ss = dict(cfg["selfsup"])
-    ss_cfg = SelfSupConfig(**{**ss, "sgld": SGLDConfig(**ss["sgld"]), "seed": cfg["seed"]})
-    enc = Encoding(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg["encoding"].items()})
+    ss_cfg, enc = settings(cfg)
 
     learner, learn_s = None, 0.0
     if "gfcs_learned" in cfg["evaluate"]:

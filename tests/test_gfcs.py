@@ -169,3 +169,34 @@ def test_blocking_cuboids_block_the_path_not_the_ends(panda):
     assert check_path(panda, scene, path).collision and not check_path(panda, base, path).collision
     for q in (READY, goal):
         assert check_path(panda, scene, q[None]).min_clearance >= 0.03
+
+
+def test_gfcs_learned_bench_method_loads_a_run(tmp_path, shared_data):
+    """`fabrax bench method=gfcs_learned method.run=DIR` warm-starts from an experiments/gfcs.py run's sampler."""
+    import json
+
+    import yaml
+
+    from fabrax import config as fconfig
+    from fabrax.bench import cli
+    from fabrax.planners.gfcs.selfsup import new_learner, save, settings
+
+    robot = fconfig.load_robot("panda_mbm")
+    run = tmp_path / "run"
+    (run / ".hydra").mkdir(parents=True)
+    cfg = {"seed": 0, "selfsup": {"hidden": 32, "layers": 2, "sgld": {"steps": 5, "step": 0.01, "noise": 0.1}}, "encoding": {"spacing": 0.3}}
+    (run / ".hydra" / "config.yaml").write_text(yaml.safe_dump(cfg))
+    ss, enc = settings(cfg)
+    learner = new_learner(3 * robot.dof + enc.n_reference, robot.dof, ss)
+    save(learner, run / "sampler.msgpack")
+    args = ["method=gfcs_learned", f"method.run={run}", "problems=mbm", "classes=[box]", "limit=1", "progress=false"]
+    args += ["method.population=8", "method.batches=2", "method.report=[1,2]", f"out={tmp_path / 'out'}"]
+    with pytest.raises(SystemExit, match="never trained"):
+        cli.main(args)
+    learner.trained = True
+    save(learner, run / "sampler.msgpack")
+    assert cli.main(args) == 0
+    rows = json.loads((tmp_path / "out" / "results.json").read_text())["rows"]
+    assert {r["method"] for r in rows} == {"gfcs_learned", "gfcs_learned (1 b)"}
+    with pytest.raises(SystemExit, match="Missing mandatory value"):
+        cli.main(["method=gfcs_learned", "classes=[box]", "limit=1"])

@@ -23,13 +23,14 @@ def compose(overrides: list[str]):
     from hydra import initialize_config_dir
     from hydra.errors import HydraException
     from omegaconf import OmegaConf
+    from omegaconf.errors import MissingMandatoryValue
 
     try:
         with initialize_config_dir(config_dir=str(config.config_dir()), version_base=None):
             cfg = hydra_compose("bench", overrides=overrides)
-    except HydraException as e:
+        return OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)
+    except (HydraException, MissingMandatoryValue) as e:
         raise SystemExit(f"fabrax bench: {e}") from None
-    return OmegaConf.to_container(cfg, resolve=True)
 
 
 def load_problems(cfg: dict, robot) -> list:
@@ -65,7 +66,16 @@ def make_method(cfg: dict, robot):
         return FabricMethod(fabric, params, dt=cfg["dt"], t_max=cfg["t_max"], **m)
     if kind == "gfcs":
         fabric, params = config.load_fabric(robot, cfg["fabric"])
-        return GFCSMethod(fabric, params, gfcs_config(m, cfg), m["name"], tuple(m["report"]), cfg["seed"])
+        gfcs_cfg = gfcs_config(m, cfg)
+        learned = {}
+        if m.get("run"):  # a trained sampler from an experiments/gfcs.py run
+            from fabrax.planners.gfcs.selfsup import load_run
+
+            try:
+                learned = dict(zip(("learner", "selfsup", "encoding"), load_run(m["run"], robot, gfcs_cfg.n_commands)))
+            except (FileNotFoundError, ValueError) as e:
+                raise SystemExit(f"fabrax bench: {e}") from None
+        return GFCSMethod(fabric, params, gfcs_cfg, m["name"], tuple(m["report"]), cfg["seed"], **learned)
     if kind == "ompl":
         return OMPLMethod(dt=cfg["dt"], **m)
     raise SystemExit(f"fabrax bench: unknown method type '{kind}'")

@@ -111,6 +111,31 @@ def load(path: Path, context_dim: int, target_dim: int, cfg: SelfSupConfig) -> L
     return learner
 
 
+def settings(cfg: dict) -> tuple[SelfSupConfig, Encoding]:
+    """SelfSupConfig and Encoding from an experiments/gfcs.py config (its `selfsup`, `encoding`, `seed`)."""
+    ss = dict(cfg["selfsup"])
+    ss_cfg = SelfSupConfig(**{**ss, "sgld": SGLDConfig(**ss["sgld"]), "seed": cfg["seed"]})
+    enc = Encoding(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg["encoding"].items()})
+    return ss_cfg, enc
+
+
+def load_run(run_dir: str | Path, robot, n_commands: int) -> tuple[Learner, SelfSupConfig, Encoding]:
+    """The trained sampler of an experiments/gfcs.py run directory (sampler.msgpack and hydra's
+    .hydra/config.yaml), for evaluating it elsewhere (`fabrax bench method=gfcs_learned method.run=DIR`)."""
+    import yaml
+
+    run_dir = Path(run_dir)
+    cfg_file, ckpt = run_dir / ".hydra" / "config.yaml", run_dir / "sampler.msgpack"
+    for f in (cfg_file, ckpt):
+        if not f.exists():
+            raise FileNotFoundError(f"{run_dir}: not an experiments/gfcs.py run directory (no {f.relative_to(run_dir)})")
+    ss_cfg, enc = settings(yaml.safe_load(cfg_file.read_text()))
+    learner = load(ckpt, 3 * robot.dof + enc.n_reference, n_commands * robot.dof, ss_cfg)
+    if not learner.trained:
+        raise ValueError(f"{ckpt}: the sampler was never trained")
+    return learner, ss_cfg, enc
+
+
 def learned_samples(learner: Learner, robot, context: jax.Array, key: jax.Array, population: int, n_commands: int, cfg: SelfSupConfig):
     """Warm-start candidates from SGLD on the energy model, in the solver's unconstrained space."""
     u = sgld(learner.model, context, key, population, cfg.sgld).reshape(population, n_commands, robot.dof)
