@@ -129,7 +129,8 @@ def test_problem_encoding(panda):
 
 
 @pytest.mark.slow
-def test_self_supervised_run_checkpoints_and_resumes(tmp_path, panda, fabric_params):
+@pytest.mark.parametrize("latent", [None, 8], ids=["raw_dE", "autoencoder"])
+def test_self_supervised_run_checkpoints_and_resumes(tmp_path, panda, fabric_params, latent):
     from flax import nnx
 
     from fabrax.planners.gfcs.selfsup import SelfSupConfig, load, run
@@ -139,7 +140,7 @@ def test_self_supervised_run_checkpoints_and_resumes(tmp_path, panda, fabric_par
     goals = [READY + d for d in (np.array([0.4, 0, 0, 0, 0, 0, 0]), np.array([-0.3, 0.2, 0, 0.2, 0, 0, 0]))]
     problems = [make_problem(panda, READY, {"obstacles": []}, goal_q=g, name=f"free{k}") for k, g in enumerate(goals)]
     gcfg = GFCSConfig(population=4, batches=1, t_max=1.5)
-    cfg = SelfSupConfig(hidden=16, layers=2, retrain_every=2, passes=2, train_steps=3, batch=4, n_neg=2, buffer_size=6)
+    cfg = SelfSupConfig(hidden=16, layers=2, retrain_every=2, passes=2, train_steps=3, batch=4, n_neg=2, buffer_size=6, latent=latent, ae_steps=20)
     quiet = lambda *_: None  # noqa: E731
     full = run(fabric, params, problems, gcfg, cfg, tmp_path / "full.msgpack", log=quiet)
     part = tmp_path / "part.msgpack"
@@ -151,9 +152,24 @@ def test_self_supervised_run_checkpoints_and_resumes(tmp_path, panda, fabric_par
     assert np.array_equal(full.targets, resumed.targets) and np.array_equal(full.costs, resumed.costs)
     leaves = lambda m: jax.tree.leaves(nnx.state(m, nnx.Param))  # noqa: E731
     assert all(np.allclose(a, b) for a, b in zip(leaves(full.model), leaves(resumed.model), strict=True))
+    assert full.contexts.shape[1] == 21 + (latent or 1859)  # [q0, qd0, q_goal] + d_E or its code
+    if latent:
+        assert all(np.allclose(a, b) for a, b in zip(leaves(full.ae), leaves(resumed.ae), strict=True))
     with pytest.raises(ValueError, match="cannot read GFCS checkpoint"):
         (tmp_path / "bad.msgpack").write_bytes(b"not a checkpoint")
         load(tmp_path / "bad.msgpack", 10, 7, cfg)
+
+
+def test_autoencoder_compresses_distance_fields():
+    """d_E of many scenes (here: distances to a sphere moving on a line) compress to a few numbers."""
+    from fabrax.planners.gfcs.autoencoder import fit
+
+    pts = np.linspace(-1, 1, 200)
+    centres = np.random.default_rng(0).uniform(-1, 1, 64)
+    d = np.clip(np.abs(pts[None] - centres[:, None]) - 0.1, -0.15, 1.0).astype(np.float32)
+    model, losses = fit(d, latent=4, hidden=64, steps=300, lr=3e-3)
+    assert losses[-1] < 0.05 * losses[0]
+    assert model.encode(jnp.asarray(d)).shape == (64, 4)
 
 
 def test_blocking_cuboids_block_the_path_not_the_ends(panda):

@@ -137,9 +137,9 @@ class GFCSMethod:
     _warm: bool = dataclasses.field(default=False, repr=False)
 
     def _samples(self, robot: Robot, prob, key, cfg):
-        from fabrax.planners.gfcs.selfsup import learned_samples
+        from fabrax.planners.gfcs.selfsup import learned_samples, reduce
 
-        x = self.encoding.context(robot, prob.start_q, prob.start_qd, prob.goal_q, prob.scene)
+        x = reduce(self.learner, self.encoding.context(robot, prob.start_q, prob.start_qd, prob.goal_q, prob.scene))
         return jax.block_until_ready(learned_samples(self.learner, robot, x, key, cfg.population, cfg.n_commands, self.selfsup))
 
     def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]:

@@ -23,6 +23,8 @@ import numpy as np
 import optax
 from flax import nnx, serialization, traverse_util
 
+from fabrax.planners.gfcs.autoencoder import DistanceAE
+from fabrax.planners.gfcs.autoencoder import fit as fit_autoencoder
 from fabrax.planners.gfcs.cost import GFCOP, to_commands, to_unconstrained
 from fabrax.planners.gfcs.ebm import EnergyModel, SGLDConfig, sgld, train_step
 from fabrax.planners.gfcs.encoding import Encoding
@@ -43,6 +45,8 @@ class SelfSupConfig:
     layers: int = 3
     sgld: SGLDConfig = SGLDConfig(steps=20)
     seed: int = 0
+    latent: int | None = None  # compress d_E to this many numbers with an autoencoder (None: use d_E as is)
+    ae_steps: int = 500
 
 
 @dataclasses.dataclass
@@ -57,6 +61,16 @@ class Learner:
     solved: int = 0  # solves done (position in the schedule)
     trained: bool = False
     losses: list = dataclasses.field(default_factory=list)
+    ae: DistanceAE | None = None  # compresses the scene part of contexts (SelfSupConfig.latent)
+
+
+def reduce(learner: Learner, x: jax.Array) -> jax.Array:
+    """A raw encoding x_c = [q0, qd0, q_goal, d_E] as the energy model sees it: d_E through the
+    learner's autoencoder when it has one."""
+    if learner.ae is None:
+        return x
+    k = x.shape[-1] - learner.ae.n
+    return jnp.concatenate([x[..., :k], learner.ae.encode(x[..., k:])], axis=-1)
 
 
 def new_learner(context_dim: int, target_dim: int, cfg: SelfSupConfig) -> Learner:
@@ -77,6 +91,9 @@ def save(learner: Learner, path: Path) -> None:
         "trained": learner.trained,
         "losses": np.asarray(learner.losses, np.float32),
     }
+    if learner.ae is not None:
+        data["ae"] = _flat(nnx.to_pure_dict(nnx.state(learner.ae, nnx.Param)))
+        data["ae_dims"] = np.asarray([learner.ae.n, learner.ae.latent, learner.ae.width])
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
     tmp.write_bytes(serialization.msgpack_serialize(jax.tree.map(np.asarray, data)))
@@ -108,6 +125,12 @@ def load(path: Path, context_dim: int, target_dim: int, cfg: SelfSupConfig) -> L
     learner.contexts, learner.targets, learner.costs = (np.asarray(data[k]) for k in ("contexts", "targets", "costs"))
     learner.solved, learner.trained = int(data["solved"]), bool(data["trained"])
     learner.losses = [float(v) for v in np.asarray(data["losses"]).reshape(-1)]
+    if "ae" in data:
+        n, latent, width = (int(v) for v in np.asarray(data["ae_dims"]))
+        learner.ae = DistanceAE(n, latent, width, rngs=nnx.Rngs(0))
+        state = nnx.state(learner.ae, nnx.Param)
+        nnx.replace_by_pure_dict(state, _unflat(data["ae"]))
+        nnx.update(learner.ae, state)
     return learner
 
 
@@ -130,7 +153,7 @@ def load_run(run_dir: str | Path, robot, n_commands: int) -> tuple[Learner, Self
         if not f.exists():
             raise FileNotFoundError(f"{run_dir}: not an experiments/gfcs.py run directory (no {f.relative_to(run_dir)})")
     ss_cfg, enc = settings(yaml.safe_load(cfg_file.read_text()))
-    learner = load(ckpt, 3 * robot.dof + enc.n_reference, n_commands * robot.dof, ss_cfg)
+    learner = load(ckpt, 3 * robot.dof + (ss_cfg.latent or enc.n_reference), n_commands * robot.dof, ss_cfg)
     if not learner.trained:
         raise ValueError(f"{ckpt}: the sampler was never trained")
     return learner, ss_cfg, enc
@@ -170,10 +193,18 @@ def run(
     when it exists. stop_after: return after this many solves in this call (to test resumption)."""
     robot = fabric.robot
     gfcops = [GFCOP.from_problem(p) for p in problems]
-    contexts = [np.asarray(encoding.context(robot, g.start_q, g.start_qd, g.goal_q, g.scene), np.float32) for g in gfcops]
+    raw = np.stack([np.asarray(encoding.context(robot, g.start_q, g.start_qd, g.goal_q, g.scene), np.float32) for g in gfcops])
     target_dim = gfcs_cfg.n_commands * robot.dof
     checkpoint = Path(checkpoint)
-    learner = load(checkpoint, len(contexts[0]), target_dim, cfg) if checkpoint.exists() else new_learner(len(contexts[0]), target_dim, cfg)
+    context_dim = raw.shape[1] if cfg.latent is None else raw.shape[1] - encoding.n_reference + cfg.latent
+    if checkpoint.exists():
+        learner = load(checkpoint, context_dim, target_dim, cfg)
+    else:
+        learner = new_learner(context_dim, target_dim, cfg)
+        if cfg.latent is not None:  # fitted once, on the training scenes, before any solve
+            learner.ae, ae_losses = fit_autoencoder(raw[:, -encoding.n_reference :], cfg.latent, steps=cfg.ae_steps, seed=cfg.seed)
+            log(f"autoencoder {encoding.n_reference} -> {cfg.latent}: reconstruction MSE {ae_losses[0]:.4f} -> {ae_losses[-1]:.4f}")
+    contexts = np.asarray(reduce(learner, jnp.asarray(raw)), np.float32)
     if learner.solved:
         log(f"resuming after {learner.solved} solves ({len(learner.targets)} buffered)")
     fns = make_step(fabric, params, gfcs_cfg)
