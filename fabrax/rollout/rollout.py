@@ -83,6 +83,8 @@ def _program(fabric, scene, q0, qd0, reached, m, *, dt, steps, integrator, limit
     one chunk of `chunk` steps; finish turns the final loop state into a `Trajectory`."""
     if integrator not in INTEGRATORS:
         raise ValueError(f"integrator must be one of {INTEGRATORS}, got '{integrator}'")
+    if patience is not None:
+        patience = (patience[0], max(1, int(round(patience[1] / dt))), patience[2])  # seconds -> steps
     total = m * steps
     n_chunks = -(-total // chunk)
     rows = 1 + n_chunks * chunk
@@ -161,14 +163,6 @@ def _program(fabric, scene, q0, qd0, reached, m, *, dt, steps, integrator, limit
     return init, body, finish, n_chunks
 
 
-def _patience(patience, dt: float):
-    """(distance, seconds, min_progress) -> (distance, steps, min_progress)."""
-    if patience is None:
-        return None
-    distance, seconds, min_progress = patience
-    return distance, max(1, int(round(seconds / dt))), min_progress
-
-
 def rollout_sequence(
     fabric: Fabric,
     params_seq: Params,
@@ -198,22 +192,8 @@ def rollout_sequence(
     tolerance so that the arm passes a via command without stopping at it.
     """
     m = jax.tree.leaves(params_seq)[0].shape[0]
-    init, body, finish, n_chunks = _program(
-        fabric,
-        scene,
-        q0,
-        qd0,
-        reached,
-        m,
-        dt=dt,
-        steps=steps,
-        integrator=integrator,
-        limits=limits,
-        chunk=chunk,
-        stop_at_goal=stop_at_goal,
-        patience=_patience(patience, dt),
-        via=via,
-    )
+    opts = dict(dt=dt, steps=steps, integrator=integrator, limits=limits, chunk=chunk, patience=patience, via=via)
+    init, body, finish, n_chunks = _program(fabric, scene, q0, qd0, reached, m, stop_at_goal=stop_at_goal, **opts)
     cond = lambda s: (s[0] < n_chunks) & ~s[1].done  # noqa: E731
     return finish(jax.lax.while_loop(cond, lambda s: body(params_seq, s), init(params_seq)))
 
@@ -245,22 +225,8 @@ def rollout_population(
     whole budget. enough=None runs every arm to its end. patience, via: as `rollout_sequence`.
     """
     m = jax.tree.leaves(params_seqs)[0].shape[1]
-    init, body, finish, n_chunks = _program(
-        fabric,
-        scene,
-        q0,
-        qd0,
-        reached,
-        m,
-        dt=dt,
-        steps=steps,
-        integrator=integrator,
-        limits=limits,
-        chunk=chunk,
-        stop_at_goal=True,
-        patience=_patience(patience, dt),
-        via=via,
-    )
+    opts = dict(dt=dt, steps=steps, integrator=integrator, limits=limits, chunk=chunk, patience=patience, via=via)
+    init, body, finish, n_chunks = _program(fabric, scene, q0, qd0, reached, m, stop_at_goal=True, **opts)
     enough = jax.tree.leaves(params_seqs)[0].shape[0] + 1 if enough is None else enough
 
     def cond(s):
