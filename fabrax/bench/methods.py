@@ -47,30 +47,25 @@ class FabricMethod:
     dt: float = 0.01
     t_max: float = 7.0
     batch_size: int = 64
-    _compiled: dict = dataclasses.field(default_factory=dict, repr=False)  # by batch shape, across calls
+    _run: Any = dataclasses.field(default=None, repr=False)  # a Compiled rollout, kept across calls
 
     def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]:
+        from fabrax.compiled import Compiled
         from fabrax.rollout import reach
         from fabrax.scene import COMMON_CAPACITY
 
-        steps = int(round(self.t_max / self.dt))
-        run = jax.jit(lambda b: reach(self.fabric, self.params, b, dt=self.dt, steps=steps))
+        if self._run is None:
+            steps = int(round(self.t_max / self.dt))
+            self._run = Compiled(jax.jit(lambda b: reach(self.fabric, self.params, b, dt=self.dt, steps=steps)))
         out: list[Solution] = []
-        compiled = self._compiled
         for start in range(0, len(problems), self.batch_size):
             chunk = problems[start : start + self.batch_size]
             size = min(self.batch_size, 1 << (len(chunk) - 1).bit_length())  # few batch shapes: few compilations
             padded = [dataclasses.replace(p, scene=p.scene.pad(**COMMON_CAPACITY)) for p in chunk + [chunk[-1]] * (size - len(chunk))]
             b = batch(padded)
-            shapes = jax.tree.map(lambda a: a.shape, b)
-            key = str(shapes)
-            compile_s = 0.0
-            if key not in compiled:
-                t0 = time.perf_counter()
-                compiled[key] = run.lower(b).compile()
-                compile_s = time.perf_counter() - t0
+            run, compile_s = self._run.get(b)
             t0 = time.perf_counter()
-            tr = jax.block_until_ready(compiled[key](b))
+            tr = jax.block_until_ready(run(b))
             per = (time.perf_counter() - t0) / len(chunk)
             q, length = np.asarray(tr.q), np.asarray(tr.length)
             for k in range(len(chunk)):

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from evosax.algorithms import CMA_ES
 
+from fabrax.compiled import Compiled
 from fabrax.fabrics.fabric import Params
 from fabrax.planners.gfcs.cost import GFCOP, population_cost, to_commands
 from fabrax.rollout.trajectory import Trajectory
@@ -83,22 +84,6 @@ def _evaluate(fabric, params: Params, problem: GFCOP, pop: jax.Array, cfg: GFCSC
     return costs, jax.tree.map(lambda a: a[k], trajs)
 
 
-class Compiled:
-    """A jitted function compiled ahead of time once per argument signature (shapes and dtypes), so
-    that solving many problems of one padded size compiles once and the compile time is measurable."""
-
-    def __init__(self, fn):
-        self.fn, self.cache = fn, {}
-
-    def get(self, *args):
-        """(executable, output shapes) for these arguments' signature."""
-        leaves, tree = jax.tree.flatten(args)
-        key = (tree, tuple((tuple(a.shape), str(a.dtype)) for a in leaves))
-        if key not in self.cache:
-            self.cache[key] = (self.fn.lower(*args).compile(), jax.eval_shape(self.fn, *args))
-        return self.cache[key]
-
-
 def make_step(fabric, params: Params, cfg: GFCSConfig):
     """(first, step): the batch functions, each a `Compiled`. first(problem, samples, key) evaluates the
     warm-start samples and initialises CMA-ES from them; step(problem, state, key) asks, evaluates and tells."""
@@ -136,10 +121,11 @@ def solve(fabric, params: Params, problem: GFCOP, key: jax.Array, cfg: GFCSConfi
     if samples.shape != (cfg.population, cfg.n_commands, robot.dof):
         raise ValueError(f"samples: expected shape {(cfg.population, cfg.n_commands, robot.dof)}, got {samples.shape}")
     keys = jax.random.split(key, cfg.batches)
-    t0 = time.perf_counter()
-    first_c, shapes = first.get(problem, samples, keys[0])
-    step_c = step.get(problem, shapes[0], keys[0])[0] if cfg.batches > 1 else None
-    compile_s = time.perf_counter() - t0
+    first_c, compile_s = first.get(problem, samples, keys[0])
+    step_c = None
+    if cfg.batches > 1:
+        step_c, step_s = step.get(problem, first_c.out_info[0], keys[0])  # the CMA-ES state's shapes
+        compile_s += step_s
 
     all_z, all_cost, per_batch = [], [], []
     best_cost, best_traj, best_z = np.inf, None, None
