@@ -27,8 +27,21 @@ def _frame_points(robot: Robot, frame: str):
 
 
 @functools.partial(jax.jit, static_argnames=("frame", "iters"))
-def solve_ik(robot: Robot, frame: str, position, quat_wxyz, seeds: jax.Array, iters: int = 100, damping: float = 1e-3):
-    """Joint configurations (S, n) from seeds (S, n) that put `frame` at the pose; and their residuals (S,) in m."""
+def solve_ik(
+    robot: Robot,
+    frame: str,
+    position,
+    quat_wxyz,
+    seeds: jax.Array,
+    iters: int = 100,
+    damping: float = 1e-3,
+    posture=None,
+    posture_weight: float = 0.0,
+):
+    """Joint configurations (S, n) from seeds (S, n) that put `frame` at the pose; and their residuals (S,) in m.
+    posture (n,), posture_weight (m^2 per rad^2): a soft pull toward a configuration that picks among the
+    redundant solutions (the residual reported is the pose part alone)."""
+    posture = seeds[0] if posture is None else jnp.asarray(posture)
     fr, local = _frame_points(robot, frame)
     target = jaxlie.SO3(jnp.asarray(quat_wxyz) / jnp.linalg.norm(quat_wxyz)).apply(_POINTS) + jnp.asarray(position)
 
@@ -39,8 +52,9 @@ def solve_ik(robot: Robot, frame: str, position, quat_wxyz, seeds: jax.Array, it
 
     def step(q, _):
         r, jac = residual_jac(q)
-        jtj = jac.T @ jac
-        dq = -jnp.linalg.solve(jtj + damping * (1.0 + jnp.diag(jtj).mean()) * jnp.eye(q.shape[0]), jac.T @ r)
+        jtj = jac.T @ jac + posture_weight * jnp.eye(q.shape[0])
+        grad = jac.T @ r + posture_weight * (q - posture)
+        dq = -jnp.linalg.solve(jtj + damping * (1.0 + jnp.diag(jtj).mean()) * jnp.eye(q.shape[0]), grad)
         return robot.clip(q + dq), None
 
     def one(q0):

@@ -278,3 +278,41 @@ def results_browser(viewer: Viewer, run_dirs: list[str | Path]) -> dict:
     pick.on_update(show)
     show()
     return state
+
+
+def skill_view(viewer: Viewer, run_dir: str | Path) -> dict:
+    """An experiments/skills.py run: the obstacle, the demonstrations' end-effector paths, and the decoded
+    geodesics (plain and reshaped by the obstacle metric) played back side by side; a dropdown picks the pair."""
+    run_dir = Path(run_dir)
+    try:
+        result = json.loads((run_dir / "results.json").read_text())
+        paths = np.load(run_dir / "paths.npz")
+    except (OSError, ValueError) as e:
+        raise ValueError(f"{run_dir}: not a skills run (results.json, paths.npz): {e}") from e
+    if "obstacle" not in result or "plain" not in paths:
+        raise ValueError(f"{run_dir}: not a skills run (no obstacle or decoded paths)")
+    o = result["obstacle"]
+    scene = {"obstacles": [{"type": "sphere", "center": o["center"], "radius": o["radius"]}]}
+    pairs = [str(i) for i in range(len(paths["plain"]))]
+    pick = viewer.server.gui.add_dropdown("demonstration", options=pairs, initial_value=pairs[0])
+    table = viewer.server.gui.add_markdown("")
+
+    def show(_=None):
+        viewer.clear()
+        viewer.nodes += draw_scene(viewer.server, scene, "/scene")
+        k = int(pick.value)
+        arms = []
+        for i, (name, color) in enumerate((("plain", PATHS[0]), ("reshaped", PATHS[1]))):
+            q = np.asarray(paths[name][k])
+            arms.append((viewer.ghost(q[0], f"/skill/{name}", color=color, opacity=0.6), q))
+            viewer.ee_line(q, f"/skill/path_{name}", color)
+        viewer.arm.update(arms[0][1][0])
+        rows = ["| geodesic | EE clearance (cm) | fabric success |", "|---|---|---|"]
+        for name in ("plain", "reshaped"):
+            rows.append(f"| {name} | {100 * o[name]['ee_clearance_mean_m']:.1f} | {o[name]['fabric_success_rate']:.0%} |")
+        table.content = "\n".join(rows)
+        viewer.player(arms, 0.05)
+
+    pick.on_update(show)
+    show()
+    return {"pairs": len(pairs), "demo": result["demo"]}

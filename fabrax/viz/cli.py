@@ -3,6 +3,7 @@
     fabrax view demo                         # the built-in shelf problem, the fabric's motion played back
     fabrax view live                         # drag the goal gizmo and the obstacles; the fabric reacts in real time
     fabrax view results bench_out/gf bench_out/gfcs   # step through benchmark runs, methods side by side
+    fabrax view skill outputs/skills/<time>          # a motion skill's geodesics, plain and reshaped by an obstacle
 
 Then open http://127.0.0.1:8080 (--port, --host to change; --seconds N serves N seconds and exits).
 """
@@ -10,25 +11,29 @@ Then open http://127.0.0.1:8080 (--port, --host to change; --seconds N serves N 
 from __future__ import annotations
 
 import argparse
+import json
 import time
+from pathlib import Path
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="fabrax view", description=__doc__.splitlines()[0])
-    parser.add_argument("mode", choices=["demo", "live", "results"])
-    parser.add_argument("runs", nargs="*", help="results: run directories holding results.json and paths.npz")
+    parser.add_argument("mode", choices=["demo", "live", "results", "skill"])
+    parser.add_argument("runs", nargs="*", help="results: run directories holding results.json and paths.npz; skill: one skills run")
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--port", type=int, default=8080)
     parser.add_argument("--robot", default="panda", help="robot config in configs/robot (results: the run's robot by default)")
     parser.add_argument("--fabric", default="panda", help="fabric config in configs/fabric")
     parser.add_argument("--seconds", type=float, default=None, help="serve this long, then exit (default: until Ctrl-C)")
     args = parser.parse_args(argv)
-    if args.mode == "results" and not args.runs:
-        parser.error("results: give one or more run directories")
+    if args.mode in ("results", "skill") and not args.runs:
+        parser.error(f"{args.mode}: give a run directory")
 
     from fabrax.viz import app
 
     robot = args.robot
+    if args.mode == "skill":
+        robot = (json.loads((Path(args.runs[0]) / "results.json").read_text()).get("config") or {}).get("robot", robot)
     if args.mode == "results":
         meta = app.load_results(args.runs[0])[0]
         robot = meta.get("robot") or (meta.get("config") or {}).get("robot") or ("panda_mbm" if meta["config"].get("problems") == "mbm" else robot)
@@ -37,6 +42,8 @@ def main(argv: list[str] | None = None) -> int:
         print(app.view_demo(viewer, args.fabric))
     elif args.mode == "live":
         app.live(viewer, args.fabric)
+    elif args.mode == "skill":
+        print(app.skill_view(viewer, args.runs[0]))
     else:
         app.results_browser(viewer, args.runs)
     print(f"fabrax view {args.mode}: http://{args.host}:{viewer.port}", flush=True)

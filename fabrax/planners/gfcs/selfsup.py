@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-from flax import nnx, serialization, traverse_util
+from flax import nnx, serialization
 
 from fabrax.planners.gfcs.autoencoder import DistanceAE
 from fabrax.planners.gfcs.autoencoder import fit as fit_autoencoder
@@ -29,6 +29,7 @@ from fabrax.planners.gfcs.cost import GFCOP, to_commands, to_unconstrained
 from fabrax.planners.gfcs.ebm import EnergyModel, SGLDConfig, sgld, train_step
 from fabrax.planners.gfcs.encoding import Encoding
 from fabrax.planners.gfcs.solver import GFCSConfig, make_step, solve
+from fabrax.state_io import from_flat, to_flat
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,8 +83,8 @@ def new_learner(context_dim: int, target_dim: int, cfg: SelfSupConfig) -> Learne
 def save(learner: Learner, path: Path) -> None:
     """Write the learner atomically (a crash mid-write never leaves a broken checkpoint)."""
     data = {
-        "model": _flat(nnx.to_pure_dict(nnx.state(learner.model, nnx.Param))),
-        "opt": _flat(nnx.to_pure_dict(nnx.state(learner.opt, nnx.OptState))),
+        "model": to_flat(nnx.to_pure_dict(nnx.state(learner.model, nnx.Param))),
+        "opt": to_flat(nnx.to_pure_dict(nnx.state(learner.opt, nnx.OptState))),
         "contexts": learner.contexts,
         "targets": learner.targets,
         "costs": learner.costs,
@@ -92,24 +93,12 @@ def save(learner: Learner, path: Path) -> None:
         "losses": np.asarray(learner.losses, np.float32),
     }
     if learner.ae is not None:
-        data["ae"] = _flat(nnx.to_pure_dict(nnx.state(learner.ae, nnx.Param)))
+        data["ae"] = to_flat(nnx.to_pure_dict(nnx.state(learner.ae, nnx.Param)))
         data["ae_dims"] = np.asarray([learner.ae.n, learner.ae.latent, learner.ae.width])
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
     tmp.write_bytes(serialization.msgpack_serialize(jax.tree.map(np.asarray, data)))
     os.replace(tmp, path)
-
-
-def _flat(tree: dict) -> dict:
-    """String keys for msgpack (nnx pure dicts index list layers by int)."""
-    return {"/".join(map(str, k)): np.asarray(v) for k, v in traverse_util.flatten_dict(tree).items()}
-
-
-def _unflat(flat: dict) -> dict:
-    def ints(d):
-        return {int(k) if k.isdigit() else k: ints(v) if isinstance(v, dict) else v for k, v in d.items()}
-
-    return ints(traverse_util.unflatten_dict(flat, sep="/"))
 
 
 def load(path: Path, context_dim: int, target_dim: int, cfg: SelfSupConfig) -> Learner:
@@ -120,7 +109,7 @@ def load(path: Path, context_dim: int, target_dim: int, cfg: SelfSupConfig) -> L
     learner = new_learner(context_dim, target_dim, cfg)
     for obj, key, filt in ((learner.model, "model", nnx.Param), (learner.opt, "opt", nnx.OptState)):
         state = nnx.state(obj, filt)
-        nnx.replace_by_pure_dict(state, _unflat(data[key]))
+        nnx.replace_by_pure_dict(state, from_flat(data[key]))
         nnx.update(obj, state)
     learner.contexts, learner.targets, learner.costs = (np.asarray(data[k]) for k in ("contexts", "targets", "costs"))
     learner.solved, learner.trained = int(data["solved"]), bool(data["trained"])
@@ -129,7 +118,7 @@ def load(path: Path, context_dim: int, target_dim: int, cfg: SelfSupConfig) -> L
         n, latent, width = (int(v) for v in np.asarray(data["ae_dims"]))
         learner.ae = DistanceAE(n, latent, width, rngs=nnx.Rngs(0))
         state = nnx.state(learner.ae, nnx.Param)
-        nnx.replace_by_pure_dict(state, _unflat(data["ae"]))
+        nnx.replace_by_pure_dict(state, from_flat(data["ae"]))
         nnx.update(learner.ae, state)
     return learner
 
