@@ -3,13 +3,17 @@
 from pathlib import Path
 
 import pytest
+from conftest import data_dir
 
+NEEDS_DATA = {"02_benchmark", "03_gfcs"}  # the panda_mbm robot reads the reference collision spheres from FABRAX_DATA
 NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.py"))
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
 def test_notebook_runs(path, tmp_path):
+    if path.stem in NEEDS_DATA and data_dir() is None:
+        pytest.skip("FABRAX_DATA is not set to the shared data folder (../shared/data)")
     jupytext = pytest.importorskip("jupytext", reason="needs the dev extra (jupytext, nbclient, ipykernel)")
     nbclient = pytest.importorskip("nbclient", reason="needs the dev extra (jupytext, nbclient, ipykernel)")
     nb = jupytext.read(path)

@@ -94,3 +94,27 @@ def test_results_browser_shows_every_method(viewer, tmp_path, shared_data):
     assert len(viewer.ghosts) == 2  # the goal and the gf motion
     with pytest.raises(FileNotFoundError, match="results.json"):
         load_results(tmp_path / "missing")
+
+
+def test_skill_view_plays_plain_and_reshaped_geodesics(viewer, tmp_path):
+    import json
+
+    from fabrax.viz.app import skill_view
+
+    q0 = np.array([0.0, -0.3, 0.0, -2.0, 0.0, 1.8, 0.785])
+    path = q0 + np.linspace(0.0, 0.4, 20)[:, None] * np.array([1.0, 0, 0, 0, 0, 0, 0])
+    stats = {"ee_clearance_mean_m": 0.01, "fabric_success_rate": 1.0}
+    result = {
+        "demo": "jc",
+        "obstacle": {"center": [0.45, 0.1, 0.45], "radius": 0.02, "plain": stats, "reshaped": stats},
+        "config": {"robot": "panda"},
+    }
+    (tmp_path / "results.json").write_text(json.dumps(result))
+    np.savez(tmp_path / "paths.npz", plain=np.stack([path, path]), reshaped=np.stack([path, path[::-1]]))
+    info = skill_view(viewer, tmp_path)
+    assert info == {"pairs": 2, "demo": "jc"}
+    names = {getattr(n, "name", "") for n in viewer.nodes}
+    assert "/scene/sphere_0" in names and "/skill/path_plain" in names and "/skill/path_reshaped" in names
+    assert len(viewer.ghosts) == 2
+    with pytest.raises(ValueError, match="not a skills run"):
+        skill_view(viewer, tmp_path / "missing")

@@ -134,7 +134,9 @@ def run(cfg: dict, out: Path) -> dict:
         if d.theta is not None:
             dj = nearest(np.asarray(joint_paths(z)), d.theta.reshape(-1, robot.dof))
             fig[name].update(joint_mean_rad=float(dj.mean()), joint_max_rad=float(dj.max()))
-    fig["riemannian"].update(energy=float(jnp.mean(geo.energy)), straight_energy=float(jnp.mean(geo.energy0)), iters=float(jnp.mean(geo.iters)))
+    fig["riemannian"].update(energy=float(jnp.mean(geo.energy)), initial_energy=float(jnp.mean(geo.energy0)), iters=float(jnp.mean(geo.iters)))
+    e_line = jax.vmap(lambda a, b: geodesic.energy(metric.speed2_fn(graphdef), (state, metric.NONE), sb, a, b, spline.straight(sb, a, b)))
+    fig["euclidean"]["energy"] = float(jnp.mean(e_line(starts, ends)))  # the latent line's energy under the learned metric
 
     # --- an obstacle on the demonstrated path, unseen in training
     oc = cfg["obstacle"]
@@ -166,6 +168,12 @@ def run(cfg: dict, out: Path) -> dict:
     paths = {}
     for name, z in (("plain", z_riem[own]), ("reshaped", z_obs)):
         qp = np.asarray(joint_paths(z))
+        start_clear = min(float(execute.sphere_clearance(robot, jnp.asarray(p[:1]), c_obs, r_obs)) for p in qp)
+        if start_clear < 0.0:
+            raise ValueError(
+                f"obstacle: the sphere at {np.round(center, 3).tolist()} overlaps the arm at a start configuration "
+                f"({100 * start_clear:.1f} cm); move it (obstacle.at, obstacle.point) or shrink it (obstacle.radius)"
+            )
         pts = np.asarray(fk(jnp.asarray(qp.reshape(-1, robot.dof)))[0]).reshape(qp.shape[0], qp.shape[1], -1, 3)
         ee_path = ee(z)
         ee_clear = np.linalg.norm(ee_path - center, axis=-1).min(1) - oc["radius"]
@@ -255,16 +263,16 @@ def time_geodesics(solve, state, obs, codes: np.ndarray, tcfg: dict, seed: int) 
 def table(results: list[dict]) -> str:
     """Markdown: one row per run."""
     head = (
-        "| demo | space | latent | dist. to demos Riem. mean / max (cm) | Eucl. mean / max (cm) | EE clearance plain / reshaped (cm) "
+        "| demo | space | latent | obstacle on | dist. to demos Riem. mean / max (cm) | Eucl. mean / max (cm) | EE clearance plain / reshaped (cm) "
         "| arm-point clearance plain / reshaped (cm) | replay collisions plain / reshaped | fabric success plain / reshaped "
-        "| fabric collisions plain / reshaped | geodesic ms (1 / batch) |\n|" + "---|" * 11 + "\n"
+        "| fabric collisions plain / reshaped | geodesic ms (1 / batch) |\n|" + "---|" * 12 + "\n"
     )
     rows = []
     for r in results:
         g, o, t = r["distance_to_demos"], r["obstacle"], r["timing"]
         p, s = o["plain"], o["reshaped"]
         rows.append(
-            f"| {r['demo']} | {r['space']} | {r['latent']} "
+            f"| {r['demo']} | {r['space']} | {r['latent']} | {'end effector' if o.get('point', -1) == -1 else 'FK point ' + str(o['point'])} "
             f"| {100 * g['riemannian']['mean_m']:.1f} / {100 * g['riemannian']['max_m']:.1f} "
             f"| {100 * g['euclidean']['mean_m']:.1f} / {100 * g['euclidean']['max_m']:.1f} "
             f"| {100 * p['ee_clearance_min_m']:.1f} / {100 * s['ee_clearance_min_m']:.1f} "
