@@ -25,9 +25,9 @@ import numpy as np
 from flax import nnx
 
 from fabrax.skills import demos, geodesic, metric, vae
-from fabrax.skills.execute import dense
 from fabrax.skills.plots import grid_maps
 from fabrax.skills.rbf import kmeans
+from fabrax.skills.spline import dense
 
 x, q = demos.jc(points=50)  # J-shaped positions, C-shaped orientations (§4.2)
 model, log = vae.fit_task(x.reshape(-1, 3), q.reshape(-1, 4), vae.VAEConfig(steps=2000, rbf_steps=400, centers=32))

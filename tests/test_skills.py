@@ -88,7 +88,7 @@ def test_ambient_metric_increases_clearance_from_an_obstacle_on_the_euclidean_ge
     obs = metric.obstacles([center], [0.3], eta=50.0)
     plain = geodesic.solver(metric.speed2_fn(gd), cfg)((state, metric.NONE), a, b)
     shaped = geodesic.solver(metric.speed2_fn(gd), cfg)((state, obs), a, b)
-    from fabrax.skills.execute import dense
+    from fabrax.skills.spline import dense
 
     def clear(g):
         z = np.asarray(dense(g.coeffs[0], 400))
@@ -156,9 +156,9 @@ def test_energy_gradient_matches_finite_differences(task_skill):
 
 
 def test_geodesic_follows_the_data_better_than_the_latent_line(task_skill):
-    from fabrax.skills.execute import dense
     from fabrax.skills.experiment import nearest
     from fabrax.skills.rbf import kmeans
+    from fabrax.skills.spline import dense
 
     model, log, _, x = task_skill
     codes = log["codes"][: x.size // 3].reshape(x.shape[0], x.shape[1], -1)

@@ -49,3 +49,14 @@ def test_unknown_key_fails_with_hydras_error():
 
     with pytest.raises(SystemExit, match="nonexistent_key"):
         compose(["nonexistent_key=1"])
+
+
+def test_skills_config_composes_and_rejects_unknown_keys():
+    from hydra import compose, initialize_config_dir
+    from hydra.errors import ConfigCompositionException
+
+    with initialize_config_dir(config_dir=str(ROOT / "configs"), version_base=None):
+        cfg = compose("skills", overrides=["demo=joint", "vae.latent=4", "obstacle.point=5"])
+        assert cfg.vae.latent == 4 and cfg.obstacle.point == 5
+        with pytest.raises(ConfigCompositionException, match="nonexistent_key"):
+            compose("skills", overrides=["vae.nonexistent_key=1"])

@@ -16,17 +16,8 @@ import numpy as np
 
 from fabrax.robot.kinematics import sphere_centers
 from fabrax.rollout import rollout_sequence
-from fabrax.skills import spline
 from fabrax.skills.demos import ik_path
 from fabrax.skills.vae import JointVAE, TaskVAE
-
-
-def dense(coeffs, points: int = 100):
-    """The spline with coefficients (4S, d) at `points` equally spaced times."""
-    segments = coeffs.shape[0] // 4
-    t = np.linspace(0.0, 1.0, points)
-    seg = np.minimum((t * segments).astype(int), segments - 1)
-    return jnp.asarray(spline._powers(t, seg, segments, 0), coeffs.dtype) @ coeffs
 
 
 def decode_path(model, z, robot=None, frame: str = "panda_tcp", seed=None):

@@ -97,7 +97,7 @@ def run(cfg: dict, out: Path) -> dict:
     solve = geodesic.solver(metric.speed2_fn(graphdef), gcfg, nodes)
     sb = spline.basis(gcfg.segments, gcfg.points)
     straight = jax.jit(jax.vmap(lambda a, b: spline.coefficients(sb, a, b, spline.straight(sb, a, b))))
-    densify = jax.jit(jax.vmap(execute.dense))
+    densify = jax.jit(jax.vmap(spline.dense))
 
     @jax.jit
     def joint_paths(zs):  # (B, T, d) -> (B, T, n)

@@ -100,11 +100,21 @@ def through(sb: SplineBasis, start, end, path):
     return sb.fit @ (path - sb.value @ (sb.ends @ ab))
 
 
+def at(coeffs, t, order: int = 0):
+    """Curve (order 0), velocity (1) or acceleration (2) of the spline with coefficients (4S, d) at times t (static)."""
+    segments = coeffs.shape[0] // 4
+    t = np.asarray(t, np.float64)
+    seg = np.minimum((t * segments).astype(int), segments - 1)
+    return jnp.asarray(_powers(t, seg, segments, order), coeffs.dtype) @ coeffs
+
+
+def dense(coeffs, points: int = 100):
+    """The curve at `points` equally spaced times, for decoding and drawing."""
+    return at(coeffs, np.linspace(0.0, 1.0, points))
+
+
 def evaluate(sb: SplineBasis, coeffs, t=None, order: int = 0):
     """Curve (order 0), velocity (1) or acceleration (2) at times t (default: the basis' points)."""
     if t is None and order < 2:
         return (sb.value if order == 0 else sb.speed) @ coeffs
-    segments = sb.ends.shape[0] // 4
-    t = np.asarray(sb.t if t is None else t)
-    seg = np.minimum((t * segments).astype(int), segments - 1)
-    return jnp.asarray(_powers(t, seg, segments, order), coeffs.dtype) @ coeffs
+    return at(coeffs, np.asarray(sb.t) if t is None else t, order)
