@@ -33,6 +33,7 @@ def decode_path(model, z, robot=None, frame: str = "panda_tcp", seed=None):
     raise TypeError(f"decode_path: not a skill model: {type(model).__name__}")
 
 
+@jax.jit
 def sphere_clearance(robot, q_path, centers, radii):
     """Smallest distance (m) between the robot's collision spheres along q_path (T, n) and spheres (O, 3), (O,)."""
     c = jax.vmap(lambda q: sphere_centers(robot, q))(q_path)  # (T, S, 3)
@@ -50,7 +51,8 @@ class FollowConfig:
 
 
 def follower(fabric, params, cfg: FollowConfig = FollowConfig()):
-    """jitted (path (T, n), scene) -> Trajectory: the fabric follows the path's waypoints from its first point."""
+    """jitted (paths (B, T, n), scene) -> batched Trajectory: for each path, the fabric follows its waypoints
+    from its first point; all paths in one loop."""
     steps = int(round(cfg.t_max / cfg.dt))
 
     def via(p, q, qd):
@@ -62,4 +64,4 @@ def follower(fabric, params, cfg: FollowConfig = FollowConfig()):
         seq = jax.vmap(lambda g: fabric.with_joint_goal(params, g))(path[idx])
         return rollout_sequence(fabric, seq, scene, path[0], jnp.zeros_like(path[0]), fabric.reached, dt=cfg.dt, steps=steps, via=via)
 
-    return jax.jit(run)
+    return jax.jit(jax.vmap(run, in_axes=(0, None)))

@@ -23,7 +23,7 @@ from flax import nnx
 from fabrax import config
 from fabrax.bench import check_path
 from fabrax.robot.kinematics import frame_path
-from fabrax.scene.primitives import from_dict
+from fabrax.scene.primitives import empty, from_dict
 from fabrax.skills import demos, execute, geodesic, metric, spline, vae
 from fabrax.skills.rbf import kmeans
 
@@ -103,16 +103,11 @@ def run(cfg: dict, out: Path) -> dict:
     def joint_paths(zs):  # (B, T, d) -> (B, T, n)
         return jax.vmap(lambda z: execute.decode_path(model, z, robot, cfg["frame"], seed_q))(zs)
 
-    def ee_quat(zs):  # decoded end-effector orientations (B, T, 4)
+    def ee_pose(zs, qs=None):  # decoded end-effector positions (B, T, 3) and quaternions (B, T, 4)
         if d.theta is None:
-            return np.asarray(jax.vmap(jax.vmap(model.decode_q))(zs))
-        qp = jnp.asarray(joint_paths(zs)).reshape(-1, robot.dof)
-        return np.asarray(frame_path(robot, qp, cfg["frame"])[1]).reshape(zs.shape[0], zs.shape[1], 4)
-
-    def ee(zs):  # decoded end-effector positions (B, T, 3)
-        if d.theta is None:
-            return np.asarray(jax.vmap(jax.vmap(model.decode_x))(zs))
-        return np.asarray(fk(jnp.asarray(joint_paths(zs)).reshape(-1, robot.dof))[0][:, -1].reshape(zs.shape[0], zs.shape[1], 3))
+            return np.asarray(jax.vmap(jax.vmap(model.decode_x))(zs)), np.asarray(jax.vmap(jax.vmap(model.decode_q))(zs))
+        pos, quat = frame_path(robot, jnp.asarray(qs).reshape(-1, robot.dof), cfg["frame"])
+        return np.asarray(pos).reshape(*zs.shape[:2], 3), np.asarray(quat).reshape(*zs.shape[:2], 4)
 
     # --- geodesics between demonstration starts and ends: Riemannian vs Euclidean (straight latent line)
     pairs = _pairs(d, cfg["pairs"], cfg["seed"])
@@ -121,9 +116,12 @@ def run(cfg: dict, out: Path) -> dict:
     z_riem, z_eucl = densify(geo.coeffs), densify(straight(starts, ends))
     demo_pts, demo_q = d.x.reshape(-1, 3), d.q.reshape(-1, 4)
     fig = {}
+    decoded = {}
     for name, z in (("riemannian", z_riem), ("euclidean", z_eucl)):
-        dist = nearest(ee(z), demo_pts)
-        ang = np.rad2deg(2.0 * np.arccos(np.clip(np.abs(ee_quat(z) @ demo_q.T).max(-1), 0.0, 1.0)))  # to the nearest demo orientation
+        qs = None if d.theta is None else np.asarray(joint_paths(z))  # task-space IK only where the arm is needed
+        decoded[name] = ee_pose(z, qs)[0]
+        dist = nearest(decoded[name], demo_pts)
+        ang = np.rad2deg(2.0 * np.arccos(np.clip(np.abs(ee_pose(z, qs)[1] @ demo_q.T).max(-1), 0.0, 1.0)))  # to the nearest demo orientation
         fig[name] = {
             "mean_m": float(dist.mean()),
             "max_m": float(dist.max()),
@@ -131,8 +129,8 @@ def run(cfg: dict, out: Path) -> dict:
             "orientation_mean_deg": float(ang.mean()),
             "orientation_max_deg": float(ang.max()),
         }
-        if d.theta is not None:
-            dj = nearest(np.asarray(joint_paths(z)), d.theta.reshape(-1, robot.dof))
+        if qs is not None:
+            dj = nearest(qs, d.theta.reshape(-1, robot.dof))
             fig[name].update(joint_mean_rad=float(dj.mean()), joint_max_rad=float(dj.max()))
     fig["riemannian"].update(energy=float(jnp.mean(geo.energy)), initial_energy=float(jnp.mean(geo.energy0)), iters=float(jnp.mean(geo.iters)))
     e_line = jax.vmap(lambda a, b: geodesic.energy(metric.speed2_fn(graphdef), (state, metric.NONE), sb, a, b, spline.straight(sb, a, b)))
@@ -154,7 +152,7 @@ def run(cfg: dict, out: Path) -> dict:
     geo_obs = solve((state, obs), starts[own], ends[own])
     z_obs = densify(geo_obs.coeffs)
     scene = from_dict({"obstacles": [{"type": "sphere", "center": center.tolist(), "radius": oc["radius"]}]})
-    empty = from_dict({"obstacles": [{"type": "sphere", "center": [5.0, 5.0, 5.0], "radius": 0.01}]})
+    free = empty(spheres=1)  # same shapes as `scene`: one compiled follower serves both
     follow = execute.follower(fabric, params, execute.FollowConfig(**cfg["follow"]))
     c_obs, r_obs = jnp.asarray(center[None], jnp.float32), jnp.asarray([oc["radius"]], jnp.float32)
     obstacle = {
@@ -166,30 +164,30 @@ def run(cfg: dict, out: Path) -> dict:
         "eta": oc["eta"],
     }
     paths = {}
+    clearance = jax.vmap(execute.sphere_clearance, in_axes=(None, 0, None, None))
     for name, z in (("plain", z_riem[own]), ("reshaped", z_obs)):
         qp = np.asarray(joint_paths(z))
-        start_clear = min(float(execute.sphere_clearance(robot, jnp.asarray(p[:1]), c_obs, r_obs)) for p in qp)
+        start_clear = float(jnp.min(clearance(robot, jnp.asarray(qp[:, :1]), c_obs, r_obs)))
         if start_clear < 0.0:
             raise ValueError(
                 f"obstacle: the sphere at {np.round(center, 3).tolist()} overlaps the arm at a start configuration "
                 f"({100 * start_clear:.1f} cm); move it (obstacle.at, obstacle.point) or shrink it (obstacle.radius)"
             )
         pts = np.asarray(fk(jnp.asarray(qp.reshape(-1, robot.dof)))[0]).reshape(qp.shape[0], qp.shape[1], -1, 3)
-        ee_path = ee(z)
+        ee_path = pts[:, :, -1]  # the FK layer's last point is the TCP
         ee_clear = np.linalg.norm(ee_path - center, axis=-1).min(1) - oc["radius"]
         arm_clear = np.linalg.norm(pts - center, axis=-1).min((1, 2)) - oc["radius"]
-        sph_clear = np.array([float(execute.sphere_clearance(robot, jnp.asarray(p), c_obs, r_obs)) for p in qp])
+        sph_clear = np.asarray(clearance(robot, jnp.asarray(qp), c_obs, r_obs))
         replay = [check_path(robot, scene, p) for p in qp]
         runs = {"obstacle": [], "free": []}
-        for sc_name, sc in (("obstacle", scene), ("free", empty)):
-            for p, e_skill in zip(qp, ee_path):
-                tr = follow(jnp.asarray(robot.clip(jnp.asarray(p))), sc)
-                n = int(tr.length)
-                qs = np.asarray(tr.q[:n])
+        for sc_name, sc in (("obstacle", scene), ("free", free)):
+            tr = follow(jnp.asarray(qp), sc)  # every path in one batched rollout
+            for k, e_skill in enumerate(ee_path):
+                qs = np.asarray(tr.q[k, : int(tr.length[k])])
                 chk = check_path(robot, sc, qs)
                 track = nearest(np.asarray(fk(jnp.asarray(qs))[0][:, -1]), e_skill)
                 runs[sc_name].append(
-                    {"reached": bool(tr.reached), "collision": chk.collision, "clearance": chk.min_clearance, "track": float(track.mean())}
+                    {"reached": bool(tr.reached[k]), "collision": chk.collision, "clearance": chk.min_clearance, "track": float(track.mean())}
                 )
         obstacle[name] = {
             "ee_clearance_mean_m": float(ee_clear.mean()),
@@ -206,6 +204,7 @@ def run(cfg: dict, out: Path) -> dict:
             "free_tracking_m": float(np.mean([r["track"] for r in runs["free"]])),
         }
         paths[name] = qp
+    paths_ee = ee_path  # the reshaped geodesics' end-effector paths, from the FK of their joint paths
 
     timing = time_geodesics(solve, state, obs, codes, cfg["timing"], cfg["seed"])
     result = {
@@ -232,7 +231,8 @@ def run(cfg: dict, out: Path) -> dict:
         from fabrax.skills.plots import latent_maps, task_paths
 
         latent_maps(model, codes, {"Riemannian": z_riem, "Euclidean": z_eucl, "with obstacle": z_obs}, obs, out / "latent.png")
-        task_paths(d.x, {"Riemannian": ee(z_riem), "Euclidean": ee(z_eucl), "with obstacle": ee(z_obs)}, obstacle, out / "paths.png")
+        curves = {"Riemannian": decoded["riemannian"], "Euclidean": decoded["euclidean"], "with obstacle": paths_ee}
+        task_paths(d.x, curves, obstacle, out / "paths.png")
     print(table([result]))
     print(f"results: {out / 'results.json'}")
     return result

@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import nnx
+from scipy.cluster.vq import kmeans2
 
 
 class RBFWeight(nnx.Param):
@@ -44,20 +45,7 @@ class RBFPrecision(nnx.Module):
         self.weight[...] = self.weight[...] + jnp.log(jnp.broadcast_to(jnp.asarray(precision, jnp.float32), self.weight.shape[1:]))
 
 
-def kmeans(x: np.ndarray, k: int, seed: int = 0, iters: int = 100) -> tuple[np.ndarray, np.ndarray]:
-    """Lloyd's k-means with k-means++ seeding; (centres (k, d), labels (n,)). k is capped at the number of points."""
-    rng = np.random.default_rng(seed)
+def kmeans(x: np.ndarray, k: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """k-means++ then Lloyd iterations (scipy's kmeans2); (centres (k, d), labels (n,)). k is capped at the number of points."""
     x = np.asarray(x, np.float64)
-    k = min(k, len(x))
-    centers = [x[rng.integers(len(x))]]
-    for _ in range(k - 1):
-        d2 = np.min(np.sum((x[:, None] - np.asarray(centers)[None]) ** 2, -1), axis=1)
-        centers.append(x[rng.choice(len(x), p=d2 / d2.sum())] if d2.sum() > 0 else x[rng.integers(len(x))])
-    centers = np.asarray(centers)
-    for _ in range(iters):
-        labels = np.argmin(np.sum((x[:, None] - centers[None]) ** 2, -1), axis=1)
-        new = np.array([x[labels == j].mean(0) if np.any(labels == j) else centers[j] for j in range(k)])
-        if np.allclose(new, centers):
-            break
-        centers = new
-    return centers, labels
+    return kmeans2(x, min(k, len(x)), minit="++", seed=seed)
