@@ -160,3 +160,73 @@ def test_patience_ends_a_segment_that_makes_no_progress(fabric, panda):
     assert not bool(full.reached[0])  # trapped: the test needs a blocked command
     assert int(cut.length[0]) < int(full.length[0]) // 2
     assert np.allclose(np.asarray(cut.segment_times[0]), 5.0)  # both segments charged their budget
+
+
+def test_full_speed_sweeps_never_penetrate(fabric, panda):
+    """Every joint at its velocity limit toward a wall, a thin board or a box edge, the joint goal
+    beyond it: the fabric stops every sweep that the joint acceleration limits can stop (the exact
+    checker finds no penetration), where the thesis' eq. 3.9 limiter lets some through."""
+    from fabrax.problems.sweeps import sweeps
+
+    fab, params = fabric
+    problems = sweeps(panda, 45, seed=11, default_q=READY)
+    assert {p.kind for p in problems} == {"sweep_wall", "sweep_board", "sweep_edge"}
+
+    def run_all(limits):
+        tr = jax.jit(lambda b: reach(fab, params, b, "joint", dt=0.01, steps=200, stop_at_goal=False, limits=limits))(batch(problems))
+        q = np.asarray(tr.q)
+        return [check_path(panda, p.scene, q[k]) for k, p in enumerate(problems)]
+
+    checks = run_all(True)
+    assert not any(c.scene_collision for c in checks), [round(c.min_clearance * 1000, 1) for c in checks if c.scene_collision]
+    assert min(c.min_clearance for c in checks) < 0.05  # the sweeps did come close
+    assert any(c.scene_collision for c in run_all("shrink"))
+
+
+def test_goals_on_joint_limits_are_reached(fabric, panda):
+    """Joint goals with joints exactly at their limits (as many MotionBenchMaker goals are): reached, limits kept."""
+    fab, params = fabric
+    lo, hi = np.asarray(panda.lower), np.asarray(panda.upper)
+    goals = [np.asarray(GOAL).copy() for _ in range(3)]
+    goals[0][1], goals[1][5], goals[2][4] = hi[1], hi[5], lo[4]
+    goals[2][6] = hi[6]
+    for g in goals:
+        tr = jax.jit(lambda p: rollout(fab, p, sc.empty(cuboids=1), READY, jnp.zeros(7), fab.reached, dt=0.01, steps=700))(fab.with_joint_goal(params, jnp.asarray(g)))
+        assert bool(tr.reached), g
+        q = np.asarray(tr.q[: int(tr.length)])
+        assert np.all(q >= lo - 1e-5) and np.all(q <= hi + 1e-5)
+
+
+def test_no_chattering_at_rest(fabric, panda):
+    """Started at rest on its goal, beside an obstacle, the fabric stays there (joint and pose aims)."""
+    fab, params = fabric
+    hand = np.asarray(frame_pose(panda, GOAL, fab.goal_frame).translation())
+    wall = sc.from_dict({"obstacles": [{"type": "cuboid", "center": (hand + [0.0, 0.0, -0.17]).tolist(), "size": [0.3, 0.3, 0.02]}]})
+    target = frame_pose(panda, GOAL, fab.goal_frame)
+    for p in (fab.with_joint_goal(params, GOAL), fab.with_pose_goal(params, target.translation(), target.rotation().wxyz, GOAL)):
+        tr = jax.jit(lambda pp: rollout(fab, pp, wall, GOAL, jnp.zeros(7), fab.reached, dt=0.01, steps=300, stop_at_goal=False))(p)
+        assert float(tr.min_clearance) < 0.1  # the repulsion acts
+        assert float(jnp.abs(tr.q - GOAL).max()) < 2e-3
+        assert float(jnp.abs(tr.qd[-2]).max()) < 1e-3
+
+
+def test_sliding_along_a_surface_is_pushed_off(panda):
+    """k_slide: a sphere moving along a wall (distance rate 0) gets a geometric push away from it."""
+    from fabrax.fabrics.terms import TermInputs, obstacle_repulsion
+    from fabrax.robot import point_kinematics
+
+    q = jnp.asarray(READY)
+    kin0 = point_kinematics(panda, q, jnp.zeros(7), panda.sphere_frame, panda.sphere_local)
+    s = 40
+    c, r = np.asarray(kin0.x[:, s]), float(panda.sphere_radius[s])
+    wall = sc.from_dict({"obstacles": [{"type": "cuboid", "center": [float(c[0]), float(c[1]), float(c[2]) - r - 0.03 - 0.01], "size": [2.0, 2.0, 0.02]}]})
+    jac = np.asarray(kin0.jac[:, :, s])
+    qd = jnp.asarray(np.linalg.lstsq(jac, np.array([0.5, 0.0, 0.0]), rcond=None)[0], jnp.float32)  # sphere s slides along x
+    kin = point_kinematics(panda, q, qd, panda.sphere_frame, panda.sphere_local)
+    inputs = TermInputs(q, qd, kin, wall, panda)
+    pushes = []
+    for k_slide in (0.0, 0.5):
+        t = obstacle_repulsion(k_slide=k_slide)
+        pushes.append(-(jac[2] @ np.asarray(t.apply(t.init(), inputs).f_geom)))  # upward part of -f_geom through sphere s
+    assert abs(float(kin.xd[2, s])) < 1e-3
+    assert pushes[1] > pushes[0] + 1e-3

@@ -3,7 +3,7 @@
 from fabrax.fabrics.arm import ArmFabric, build_arm_fabric
 from fabrax.fabrics.fabric import Fabric, FabricEval, Params, unforced
 from fabrax.fabrics.lagrangian import eom, hd2_geometry
-from fabrax.fabrics.limits import acceleration_box, max_acceleration, solve_in_box
+from fabrax.fabrics.limits import acceleration_box, max_acceleration, solve_in_box, solve_shrinking
 from fabrax.fabrics.spec import Spec, combine, energize, energize_alpha, pullback, solve
 from fabrax.fabrics.terms import (
     Contribution,
@@ -43,5 +43,6 @@ __all__ = [
     "self_collision",
     "solve",
     "solve_in_box",
+    "solve_shrinking",
     "unforced",
 ]

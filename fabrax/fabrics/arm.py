@@ -1,9 +1,12 @@
 """The arm fabric assembled from a config (configs/fabric/*.yaml), with goal helpers.
 
 Terms are looked up by role: `goal` (joint attractor aimed at a joint goal or
-a GFCS command), `posture` (joint attractor for redundancy under pose goals),
-`ee` (end-effector pose attractor), plus repulsion, limits and damping terms.
-A joint goal switches on `goal` and off `ee`/`posture`; a pose goal the reverse.
+a GFCS command), `posture` (joint attractor that postures the arm in the null
+space of a pose goal, thesis §3.3.2), `ee` (end-effector pose attractor), plus
+repulsion, limits and damping terms. A joint goal switches on `goal` and off
+`ee`/`posture`; a pose goal the reverse, with the posture aimed at a given
+joint configuration (e.g. the joint goal whose hand pose is the pose goal) or
+at the robot's default posture.
 """
 
 from __future__ import annotations
@@ -22,6 +25,9 @@ from fabrax.robot.kinematics import frame_pose
 from fabrax.robot.robot import Robot
 
 
+AIMS = ("joint", "pose")
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class ArmFabric(Fabric):
     goal_frame: str = "panda_hand"
@@ -29,6 +35,7 @@ class ArmFabric(Fabric):
     position_tolerance: float = 0.01  # m
     orientation_tolerance: float = float(np.deg2rad(15.0))  # rad
     posture: tuple = ()
+    default_posture_weight: float = 1.0
 
     def _has(self, name: str) -> bool:
         return any(t.name == name for t in self.terms)
@@ -49,20 +56,38 @@ class ArmFabric(Fabric):
         params = self._set(params, "ee", weight=0.0)
         return self._set(params, "posture", weight=0.0)
 
-    def with_pose_goal(self, params: Params, position: jax.Array, quat_wxyz: jax.Array) -> Params:
-        """Aim the fabric at an end-effector pose of `goal_frame`, holding the posture in the null space."""
+    def with_pose_goal(self, params: Params, position: jax.Array, quat_wxyz: jax.Array, posture: jax.Array | None = None) -> Params:
+        """Aim the fabric at an end-effector pose of `goal_frame`, holding `posture` in the null space;
+        without one, the robot's default posture at `default_posture_weight` (a posture that does not
+        match the goal pulls against it, so it is held more loosely)."""
         if not self._has("ee"):
             raise ValueError("this fabric has no 'ee' end-effector attractor term")
         params = self._set(params, "ee", target_pos=position, target_quat=quat_wxyz, weight=1.0)
         params = self._set(params, "goal", weight=0.0)
+        if posture is not None:
+            return self._set(params, "posture", target=posture, weight=1.0)
         if self.posture:
-            params = self._set(params, "posture", target=jnp.asarray(self.posture), weight=1.0)
+            params = self._set(params, "posture", target=jnp.asarray(self.posture), weight=self.default_posture_weight)
         return params
 
-    def with_goal(self, params: Params, joint_goal, goal_q, goal_pos, goal_quat) -> Params:
-        """Joint goal where `joint_goal` is true, pose goal otherwise; traceable, so it batches over problems."""
-        joint = self.with_joint_goal(params, goal_q)
-        pose = self.with_pose_goal(params, goal_pos, goal_quat) if self._has("ee") else joint
+    def with_goal(self, params: Params, joint_goal, goal_q, goal_pos, goal_quat, aim: str = "joint") -> Params:
+        """Aim at a problem's goal; traceable, so it batches over problems.
+
+        aim="joint": the joint attractor where `joint_goal` is true, the pose attractor otherwise.
+        aim="pose": always the pose attractor; a joint goal becomes the pose of `goal_frame` at
+        goal_q, with goal_q as the null-space posture (the thesis' end-effector attractor plus
+        joint-space attractor).
+        """
+        if aim not in AIMS:
+            raise ValueError(f"aim must be one of {AIMS}, got '{aim}'")
+        if not self._has("ee"):
+            return self.with_joint_goal(params, goal_q)
+        if aim == "pose":
+            at_goal = frame_pose(self.robot, goal_q, self.goal_frame)
+            joint = self.with_pose_goal(params, at_goal.translation(), at_goal.rotation().wxyz, goal_q)
+        else:
+            joint = self.with_joint_goal(params, goal_q)
+        pose = self.with_pose_goal(params, goal_pos, goal_quat)
         return jax.tree.map(lambda a, b: jnp.where(joint_goal, a, b), joint, pose)
 
     def goal_errors(self, params: Params, q: jax.Array):
@@ -88,10 +113,18 @@ class ArmFabric(Fabric):
         pose_ok = (pos <= self.position_tolerance) & (rot <= self.orientation_tolerance)
         return jnp.where(joint_mode, joint <= self.joint_tolerance, pose_ok)
 
+    def posture_reached(self, params: Params, q: jax.Array, qd: jax.Array | None = None) -> jax.Array:
+        """`reached`, and under a pose goal also the posture within the joint tolerance."""
+        if not self._has("posture"):
+            return self.reached(params, q, qd)
+        near = jnp.linalg.norm(q - params["posture"]["target"]) <= self.joint_tolerance
+        pose_mode = params["ee"]["weight"] > 0.5 if self._has("ee") else False
+        return self.reached(params, q, qd) & (near | ~pose_mode)
+
 
 def build_arm_fabric(robot: Robot, cfg: dict[str, Any], posture=None) -> ArmFabric:
     """An `ArmFabric` from a config mapping: {terms: {name: {type: ..., params...}}, goal_tolerance: {...}, goal_frame}."""
-    known = {"terms", "goal_tolerance", "goal_frame"}
+    known = {"terms", "goal_tolerance", "goal_frame", "energization", "default_posture_weight"}
     unknown = set(cfg) - known
     if unknown:
         raise ValueError(f"unknown fabric config keys {sorted(unknown)} (known: {sorted(known)})")
@@ -101,6 +134,8 @@ def build_arm_fabric(robot: Robot, cfg: dict[str, Any], posture=None) -> ArmFabr
         kind = spec.pop("type", None)
         if kind not in TERMS:
             raise ValueError(f"fabric term '{name}': unknown type '{kind}' (types: {', '.join(TERMS)})")
+        if kind == "ee_attractor":
+            spec.setdefault("frame", cfg.get("goal_frame", "panda_hand"))
         if kind == "joint_attractor":
             spec.setdefault("n", robot.dof)
             if "target" not in spec:
@@ -118,6 +153,8 @@ def build_arm_fabric(robot: Robot, cfg: dict[str, Any], posture=None) -> ArmFabr
         position_tolerance=float(tol.get("position", 0.01)),
         orientation_tolerance=float(np.deg2rad(tol.get("orientation_deg", 15.0))),
         posture=tuple(float(v) for v in posture) if posture is not None else (),
+        energization=cfg.get("energization", "dissipative"),
+        default_posture_weight=float(cfg.get("default_posture_weight", 1.0)),
     )
     robot.frame_index(fabric.goal_frame)  # fails early on an unknown frame
     return fabric

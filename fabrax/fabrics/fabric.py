@@ -7,6 +7,15 @@ geometry, alpha from energizing it with the summed pulled-back energies (eq.
 2.26), forcing potentials and damping on the right. Parameters are a dict
 {term name: params}; pass them (and the scene) as arrays so that goals,
 gains and obstacles batch under `jax.vmap`.
+
+Energization. "conservative" is eq. 2.26 exactly: the unforced fabric keeps
+H_e constant, so energy that a barrier takes out of one direction is given
+back along the whole velocity, also along the directions that approach other
+obstacles (a joint braking hard at its limit, alpha -> -1e3, drove the arm
+into a box at full acceleration). "dissipative" (the default) uses
+max(alpha, 0): the energizing correction only ever removes energy, so the
+unforced fabric's H_e never increases. max(alpha, 0) is HD1 in qd like alpha
+itself, so the system stays HD2 and keeps the geometry's paths at any speed.
 """
 
 from __future__ import annotations
@@ -26,6 +35,7 @@ from fabrax.scene import Scene
 
 Params = dict[str, Any]
 FORCING_KEYS = ("k_force", "b", "b_goal", "k_speed", "k_drag")  # parameters that inject or drain energy
+ENERGIZATIONS = ("dissipative", "conservative")
 
 
 @struct.dataclass
@@ -44,11 +54,14 @@ class Fabric:
 
     robot: Robot
     terms: tuple[Term, ...]
+    energization: str = "dissipative"  # or "conservative" (see the module docstring)
 
     def __post_init__(self):
         names = [t.name for t in self.terms]
         if len(set(names)) != len(names):
             raise ValueError(f"fabric term names must be unique, got {names}")
+        if self.energization not in ENERGIZATIONS:
+            raise ValueError(f"fabric energization must be one of {ENERGIZATIONS}, got '{self.energization}'")
 
     def init(self) -> Params:
         """Default parameters of every term."""
@@ -86,6 +99,8 @@ class Fabric:
             pts = kin[t.points(self.robot)[0]] if t.points is not None else None
             total = total + t.apply(params[t.name], TermInputs(q, qd, pts, scene, self.robot))
         alpha = energize_alpha(total.M, total.f_geom, total.f_energy, qd)
+        if self.energization == "dissipative":
+            alpha = jnp.maximum(alpha, 0.0)
         f = total.f_geom + alpha * (total.M @ qd) + total.f_force + total.damping @ qd
         return FabricEval(Spec(total.M, f), total.M, alpha, total.energy, total.potential, total)
 

@@ -3,10 +3,11 @@
 Jerk: with |qdd| <= a' = min(a_max, dt j_max / 2) (eq. 3.8) the discrete jerk
 (qdd_t+1 - qdd_t)/dt never exceeds j_max (eqs. 3.4-3.7). The acceleration box
 also keeps |qd| within the velocity limits after the step and keeps every joint
-able to brake at a' before its position limit. The fabric is solved as
-(M + alpha I) qdd + f = 0 (eqs. 3.9-3.10) with the smallest alpha, from a
-geometric ladder of candidates, whose solution lies in the box; a final clip
-only acts when the box excludes zero (a state already outside the limits).
+able to brake at a' before its position limit. Where thesis eqs. 3.9-3.10
+shrink the whole solve, (M + alpha I) qdd + f = 0, until it fits the box,
+fabrax takes the acceleration nearest to the fabric's in the fabric's own
+metric that satisfies the box (`solve_in_box`): a repulsion term near contact
+has a large metric and keeps its braking, the other directions give way.
 """
 
 from __future__ import annotations
@@ -38,13 +39,50 @@ def acceleration_box(robot: Robot, q: jax.Array, qd: jax.Array, dt: float, margi
     return jnp.minimum(lo, hi), hi
 
 
-def solve_in_box(spec: Spec, lo: jax.Array, hi: jax.Array, rungs: int = 12, ratio: float = 4.0) -> tuple[jax.Array, jax.Array]:
-    """qdd = -(M + alpha I)^-1 f for the smallest feasible alpha on a ladder (eqs. 3.9-3.10).
+def solve_in_box(spec: Spec, lo: jax.Array, hi: jax.Array, iters: int = 8) -> jax.Array:
+    """The acceleration closest to the fabric's in its own metric that lies in the box:
 
-    alpha_max = |f| / min(hi, -lo) always keeps qdd in the box when it contains
-    0 (|(M + aI)^-1 f| <= |f| / a); rungs alpha_max ratio^-k and alpha = 0 are
-    solved together. Returns (qdd, alpha).
+        argmin_a 1/2 a^T M a + f^T a   subject to   lo <= a <= hi,
+
+    i.e. the M-weighted projection of -M^-1 f onto the box. Directions of large
+    metric (a repulsion term near contact) keep their acceleration and the
+    others give way, where the uniform (M + alpha I) of thesis eq. 3.9 shrinks
+    every direction, the barrier's braking with them. Solved by primal-dual
+    active sets (free joints solve the reduced system, bounds are released by
+    the sign of their multiplier) for `iters` rounds; the best feasible iterate
+    is returned, so the result always lies in the box.
     """
+    M, f = spec.M, spec.f
+    n = M.shape[-1]
+    eye = jnp.eye(n, dtype=M.dtype)
+
+    def cost(a):
+        return 0.5 * a @ (M @ a) + f @ a
+
+    a = jnp.clip(-cholesky_solve(M, f), lo, hi)
+    best, best_cost = a, cost(a)
+    at_lo, at_hi = a <= lo, a >= hi
+    for _ in range(iters):
+        bound = at_lo | at_hi
+        b = jnp.where(at_lo, lo, jnp.where(at_hi, hi, 0.0))
+        free = ~bound
+        reduced = jnp.where(free[:, None] & free[None, :], M, 0.0) + jnp.where(bound, 1.0, 0.0)[:, None] * eye
+        a = cholesky_solve(reduced, jnp.where(free, -(f + M @ b), b))
+        grad = M @ a + f  # multipliers of the bound joints
+        at_lo = (at_lo & (grad >= 0.0)) | (free & (a < lo))
+        at_hi = (at_hi & (grad <= 0.0)) | (free & (a > hi))
+        clipped = jnp.clip(a, lo, hi)
+        c = cost(clipped)
+        better = c < best_cost
+        best, best_cost = jnp.where(better, clipped, best), jnp.where(better, c, best_cost)
+    return best
+
+
+def solve_shrinking(spec: Spec, lo: jax.Array, hi: jax.Array, rungs: int = 12, ratio: float = 4.0) -> jax.Array:
+    """Thesis eqs. 3.9-3.10 as written: qdd = -(M + alpha I)^-1 f for the smallest alpha, on a geometric
+    ladder, whose solution lies in the box (alpha_max = |f| / min(hi, -lo) always does when the box
+    contains 0; rungs alpha_max ratio^-k and alpha = 0 are solved together). Kept to compare limiters
+    (experiments/bench_sweeps.py); `solve_in_box` is the default."""
     n = spec.M.shape[-1]
     room = jnp.maximum(jnp.min(jnp.minimum(hi, -lo)), 1e-9)
     alpha_max = jnp.linalg.norm(spec.f) / room
@@ -52,6 +90,8 @@ def solve_in_box(spec: Spec, lo: jax.Array, hi: jax.Array, rungs: int = 12, rati
     eye = jnp.eye(n, dtype=spec.M.dtype)
     qdd = -cholesky_solve(spec.M + alphas[:, None, None] * eye, jnp.broadcast_to(spec.f, (rungs + 1, n)))
     ok = jnp.all((qdd >= lo) & (qdd <= hi), axis=-1)
-    k = jnp.argmax(ok)  # alphas ascend: the first feasible rung is the smallest alpha
-    k = jnp.where(ok.any(), k, rungs)
-    return jnp.clip(qdd[k], lo, hi), alphas[k]
+    k = jnp.where(ok.any(), jnp.argmax(ok), rungs)  # alphas ascend: the first feasible rung is the smallest alpha
+    return jnp.clip(qdd[k], lo, hi)
+
+
+LIMITERS = {"metric": solve_in_box, "shrink": solve_shrinking}

@@ -89,27 +89,40 @@ def _spheres(robot: Robot):
 
 
 def joint_attractor(name: str = "joint_attractor", n: int = 7, **overrides) -> Term:
-    """Joint-space attractor (thesis §3.3.2): geometry qdd = -|qd|^2 dpsi_g/dq, energy m/2 |qd|^2,
+    """Joint-space attractor (thesis §3.3.2): geometry qdd = -|qd|^2 dpsi_g/dq, energy m(q)/2 |qd|^2,
     forcing psi = k_force log cosh(alpha_force |q - q_d|) and extra damping near the target.
 
-    `weight` (0 or 1) switches the attraction (geometry, forcing, damping) while the
-    mass stays, so the fabric's metric keeps full rank. `target` is the goal or
-    command q_d (GFCS) or a posture.
+    The isotropic mass is `mass` at the target and `mass_far` far from it (the tanh profile of the
+    end-effector attractor's energy, §3.3.1; default mass_far = mass, the thesis' constant m). A
+    posture with mass_far > mass leads the arm's shape from afar and hands over near its target.
+    `weight` (0 or 1) switches the attraction (geometry, forcing, damping) while the mass stays,
+    so the fabric's metric keeps full rank. `target` is the goal or command q_d (GFCS) or a posture.
     """
+    overrides.setdefault("mass_far", overrides.get("mass", 1.0))
     defaults = dict(
-        target=np.zeros(n), weight=1.0, mass=1.0, k_geometry=2.0, alpha_geometry=5.0, k_force=10.0, alpha_force=5.0, b_goal=5.0, alpha_damping=5.0
+        target=np.zeros(n),
+        weight=1.0,
+        mass=1.0,
+        mass_far=1.0,
+        alpha_mass=1.0,
+        k_geometry=2.0,
+        alpha_geometry=5.0,
+        k_force=10.0,
+        alpha_force=5.0,
+        b_goal=5.0,
+        alpha_damping=5.0,
     )
     init = _params(defaults, overrides, name)
 
     def apply(p, inp: TermInputs) -> Contribution:
         r = inp.q - p["target"]
-        M = p["mass"] * jnp.eye(r.shape[0], dtype=r.dtype)
+        energy = lambda r_, rd: E.attractor_energy(r_, rd, p["mass"], p["mass_far"], p["alpha_mass"])  # noqa: E731
+        M, fe, H = eom(energy, r, inp.qd)
         h2 = hd2_geometry(lambda r_: E.attractor_potential(r_, p["k_geometry"], p["alpha_geometry"]))(r, inp.qd)
         psi, dpsi = jax.value_and_grad(E.attractor_potential)(r, p["k_force"], p["alpha_force"])
         b = p["b_goal"] * (1.0 - jnp.tanh(p["alpha_damping"] * E.safe_norm(r)))
         w = p["weight"]
-        energy = 0.5 * p["mass"] * jnp.sum(inp.qd * inp.qd)
-        return Contribution(M, w * (M @ h2), jnp.zeros_like(r), w * dpsi, w * b * jnp.eye(r.shape[0], dtype=r.dtype), energy, w * psi)
+        return Contribution(M, w * (M @ h2), fe, w * dpsi, w * b * jnp.eye(r.shape[0], dtype=r.dtype), H, w * psi)
 
     return Term(name, init, apply)
 
@@ -226,9 +239,13 @@ def ee_attractor(name: str = "ee_attractor", frame: str = "panda_hand", offsets=
 # ---------------------------------------------------------------------------- distance space
 
 
-def _distance_terms(p, x, xd):
-    """Elementwise over distances x with rates xd: metric m, energy force f_e, energy H,
-    geometry h2 = xd^2 dpsi/dx, forcing dpsi_f/dx and psi_f (thesis §3.3.3)."""
+def _distance_terms(p, x, xd, vt2=None):
+    """Elementwise over distances x with rates xd and squared tangential speeds vt2: metric m, energy
+    force f_e, energy H, geometry h2, forcing dpsi_f/dx and psi_f (thesis §3.3.3).
+
+    The geometry is xdd = -(xd^2 + k_slide vt2) dpsi/dx: the thesis' xd^2 dpsi/dx plus a push
+    by the speed along the surface, so that a body point sliding past an obstacle is pushed
+    off it too (vt2 = |v|^2 - xd^2 of the body point, HD2 in qd like xd^2; None for 1-D distances)."""
     energy = lambda x_, xd_: E.gated_barrier_energy(x_, xd_, p["k_metric"], p["sigma"], p["reach"], p["floor"])  # noqa: E731
     m, fe, h = eom_elementwise(energy, x, xd)
     geometry = lambda x_: E.barrier_potential(x_, p["k_barrier"], p["k_soft"], p["soft_width"], p["x0"], p["reach"], p["floor"])  # noqa: E731
@@ -237,7 +254,8 @@ def _distance_terms(p, x, xd):
     # so that it only acts where the geometry alone would let the arm touch
     forcing = lambda x_: p["k_force"] * E.barrier_potential(x_, p["k_barrier"], 0.0, p["soft_width"], p["x0"], p["force_reach"], p["floor"])  # noqa: E731
     psi, dpsi = forcing(x), jax.grad(lambda x_: jnp.sum(forcing(x_)))(x)
-    return m, fe, h, xd * xd * dpsi_g, dpsi, psi
+    speed2 = xd * xd if vt2 is None else xd * xd + p["k_slide"] * vt2
+    return m, fe, h, speed2 * dpsi_g, dpsi, psi
 
 
 def _distance_defaults():
@@ -253,6 +271,7 @@ def _distance_defaults():
         floor=2e-3,
         k_force=0.1,
         force_reach=0.05,
+        k_slide=0.0,
     )
 
 
@@ -304,10 +323,11 @@ def _pull_spheres(kin: PointKinematics, m3, g3, e3, f3) -> tuple:
     return _unpack_metric(n, sums[: len(upper)]), jnp.stack(rest[:n]), jnp.stack(rest[n : 2 * n]), jnp.stack(rest[2 * n :])
 
 
-def _pulled_pairs(p, x, rate, curv, u: list[jax.Array]) -> Contribution:
-    """1-D distance specs x with rate and curvature term, pulled back through u_k = J_x^T (one vector per
-    distance, as rows u[a] over the pairs): M = sum m u u^T, f = sum u (m (h2 + curv)), ...  (eqs. 2.55, 2.60)."""
-    m, fe, h, h2, dpsi, psi = _distance_terms(p, x, rate)
+def _pulled_pairs(p, x, rate, curv, u: list[jax.Array], vt2: jax.Array) -> Contribution:
+    """1-D distance specs x with rate, curvature term and squared tangential speed, pulled back through
+    u_k = J_x^T (one vector per distance, as rows u[a] over the pairs): M = sum m u u^T,
+    f = sum u (m (h2 + curv)), ...  (eqs. 2.55, 2.60)."""
+    m, fe, h, h2, dpsi, psi = _distance_terms(p, x, rate, vt2)
     vectors = [m * (h2 + curv), fe + m * curv, dpsi]
     sums, (clear,) = _reduce(_metric_products(u, m) + [ua * v for v in vectors for ua in u] + [h, psi], [x + p["margin"]])
     d = len(u)
@@ -346,7 +366,7 @@ def obstacle_repulsion(name: str = "obstacles", resolution: str = "scene", **ove
         kin = inp.points
         pd = distance_kinematics(inp.scene, kin.x, kin.xd)
         x = pd.d - inp.robot.sphere_radius[None, :] - p["margin"]  # (K, N)
-        m, fe, h, h2, dpsi, psi = _distance_terms(p, x, pd.rate)
+        m, fe, h, h2, dpsi, psi = _distance_terms(p, x, pd.rate, jnp.maximum(dot0(kin.xd, kin.xd)[None] - pd.rate * pd.rate, 0.0))
         n = pd.n
         wg, we = m * (h2 + pd.curv), fe + m * pd.curv
         per_pair = _metric_products([n[0], n[1], n[2]], m) + [n[c] * w for w in (wg, we, dpsi) for c in range(3)]
@@ -362,7 +382,7 @@ def obstacle_repulsion(name: str = "obstacles", resolution: str = "scene", **ove
         x = near.d - robot.sphere_radius - p["margin"]
         curv = near.curv + dot0(near.n, kin.jdqd)  # Jdot qd of x: pd^T H pd + n . (Jdot qd)_sphere
         u = [dot0(kin.jac[:, a], near.n) for a in range(kin.jac.shape[1])]
-        return _pulled_pairs(p, x, near.rate, curv, u)
+        return _pulled_pairs(p, x, near.rate, curv, u, jnp.maximum(dot0(kin.xd, kin.xd) - near.rate * near.rate, 0.0))
 
     return Term(name, init, apply_scene if resolution == "scene" else apply_sphere, _spheres)
 
@@ -398,7 +418,7 @@ def self_collision(name: str = "self_collision", resolution: str = "link", **ove
         curv = (dot0(reld, reld) - rate * rate) / dist + dot0(nrm, kin.jdqd[:, i] - kin.jdqd[:, j])
         x = dist - robot.sphere_radius[i] - robot.sphere_radius[j] - p["margin"]
         u = [dot0(kin.jac[:, a][:, i] - kin.jac[:, a][:, j], nrm) for a in range(kin.jac.shape[1])]  # J_i^T n - J_j^T n
-        return _pulled_pairs(p, x, rate, curv, u)
+        return _pulled_pairs(p, x, rate, curv, u, jnp.maximum(dot0(reld, reld) - rate * rate, 0.0))
 
     return Term(name, init, apply, _spheres)
 

@@ -1,6 +1,6 @@
 """Robots from URDF: kinematic tree, forward kinematics, limits, collision spheres."""
 
-from fabrax.robot.kinematics import PointKinematics, frame_pose, frame_transforms, link_poses, point_kinematics, points, sphere_centers
+from fabrax.robot.kinematics import PointKinematics, frame_pose, frame_transforms, keypoints, link_poses, point_kinematics, points, sphere_centers
 from fabrax.robot.robot import Robot, build_robot, panda_urdf
 from fabrax.robot.urdf import KinematicTree, parse_urdf
 
@@ -11,6 +11,7 @@ __all__ = [
     "build_robot",
     "frame_pose",
     "frame_transforms",
+    "keypoints",
     "link_poses",
     "panda_urdf",
     "parse_urdf",

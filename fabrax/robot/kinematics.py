@@ -134,3 +134,9 @@ def frame_path(robot, qs, name: str):
 def sphere_centers(robot, q):
     """World centres (S, 3) of the collision spheres."""
     return points(robot, q, robot.sphere_frame, robot.sphere_local)
+
+
+def keypoints(robot, q):
+    """World positions (8, 3) of the end effector's bounding-box corners (thesis §3.4.2)."""
+    frame = jnp.full((8,), robot.keypoint_frame, jnp.int32)
+    return points(robot, q, frame, robot.keypoint_local)

@@ -55,6 +55,8 @@ class Robot:
     pair_groups_mask: jax.Array  # (G, Q)
     link_pair_groups: jax.Array  # (LP, C) rows of pair_groups that belong to one pair of links, padded
     link_pair_groups_mask: jax.Array  # (LP, C)
+    keypoint_frame: int = struct.field(pytree_node=False, default=0)  # joint frame that carries the keypoints
+    keypoint_local: jax.Array | None = None  # (8, 3) corners of the end effector's bounding box in that frame
 
     @property
     def dof(self) -> int:
@@ -165,7 +167,7 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
     held, acceleration, jerk, frames, spheres {source: fit|file, budget,
     tolerance, file, set}, self_collision {samples, max_fraction, reference_q}.
     """
-    known = {"name", "urdf", "active_joints", "held", "acceleration", "jerk", "frames", "spheres", "self_collision", "default_q"}
+    known = {"name", "urdf", "active_joints", "held", "acceleration", "jerk", "frames", "spheres", "self_collision", "default_q", "keypoints"}
     unknown = set(cfg) - known
     if unknown:
         raise ValueError(f"unknown robot config keys {sorted(unknown)} (known: {sorted(known)})")
@@ -285,7 +287,10 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
     groups, group_mask = _groups(chunks)
     owner = np.asarray(owner)
     link_groups, link_group_mask = _groups([np.nonzero(owner == k)[0] for k in np.unique(owner)])
+    kp_frame, kp_local = _keypoint_box(cfg.get("keypoints"), frame_names, frame_parent, frame_offset, link_names, s_link, s_frame, s_local, s_radius)
     return robot.replace(
+        keypoint_frame=kp_frame,
+        keypoint_local=f32(kp_local),
         pair_i=jnp.asarray(pi),
         pair_j=jnp.asarray(pj),
         link_spheres=jnp.asarray(links),
@@ -295,6 +300,36 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
         link_pair_groups=jnp.asarray(link_groups),
         link_pair_groups_mask=jnp.asarray(link_group_mask),
     )
+
+
+def _keypoint_box(spec, frame_names, frame_parent, frame_offset, link_names, s_link, s_frame, s_local, s_radius):
+    """The 8 corners of the box, axis-aligned in frame `spec.frame`, around the collision spheres of
+    `spec.links` (the end effector's bounding box of thesis §3.4.2), in the joint frame that carries
+    them. Without a spec: a 0.1 m cube on the last link."""
+    spec = dict(spec or {})
+    unknown = set(spec) - {"frame", "links"}
+    if unknown:
+        raise ValueError(f"unknown robot.keypoints keys {sorted(unknown)} (known: frame, links)")
+    name = spec.get("frame", frame_names[-1])
+    if name not in frame_names:
+        raise ValueError(f"robot.keypoints.frame '{name}' is not a frame of the robot")
+    f = frame_names.index(name)
+    carrier, offset = int(frame_parent[f]), np.asarray(frame_offset[f])
+    links = spec.get("links") or []
+    missing = [lk for lk in links if lk not in link_names]
+    if missing:
+        raise ValueError(f"robot.keypoints.links {missing} carry no collision spheres (links with spheres: {', '.join(link_names)})")
+    s_link, s_frame, s_local, s_radius = (np.asarray(a) for a in (s_link, s_frame, s_local, s_radius))
+    sel = np.isin(s_link, [link_names.index(lk) for lk in links])
+    if sel.any() and np.any(s_frame[sel] != carrier):
+        raise ValueError(f"robot.keypoints.links must move rigidly with frame '{name}'")
+    if sel.any():
+        local = (s_local[sel] - offset[:3, 3]) @ offset[:3, :3]  # sphere centres in the keypoint frame
+        lo, hi = (local - s_radius[sel, None]).min(0), (local + s_radius[sel, None]).max(0)
+    else:
+        lo, hi = np.full(3, -0.05), np.full(3, 0.05)
+    corners = np.array([[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+    return carrier, corners @ offset[:3, :3].T + offset[:3, 3]
 
 
 def _groups(members: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

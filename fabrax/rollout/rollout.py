@@ -21,7 +21,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from fabrax.fabrics.fabric import Fabric, Params
-from fabrax.fabrics.limits import acceleration_box, solve_in_box
+from fabrax.fabrics.limits import LIMITERS, acceleration_box
 from fabrax.fabrics.spec import solve
 from fabrax.rollout.trajectory import Trajectory
 from fabrax.scene import FAR, Scene
@@ -31,16 +31,19 @@ Distance = Callable[[Params, jax.Array], jax.Array]
 INTEGRATORS = ("euler", "second_order", "rk4")
 
 
-def accel(fabric: Fabric, params: Params, scene: Scene, q, qd, dt: float, limits: bool = True):
-    """Fabric acceleration with the limits of thesis §3.3.4 applied; also returns the clearance."""
+def accel(fabric: Fabric, params: Params, scene: Scene, q, qd, dt: float, limits: bool | str = True):
+    """Fabric acceleration with the limits of thesis §3.3.4 applied; also returns the clearance.
+    limits: True or "metric" (`limits.solve_in_box`), "shrink" (thesis eq. 3.9, `limits.solve_shrinking`),
+    False (none)."""
     ev = fabric.evaluate(params, scene, q, qd)
-    if not limits:
+    if limits is False:
         return solve(ev.spec), ev.terms.clearance
+    limiter = LIMITERS["metric" if limits is True else limits]
     lo, hi = acceleration_box(fabric.robot, q, qd, dt)
-    return solve_in_box(ev.spec, lo, hi)[0], ev.terms.clearance
+    return limiter(ev.spec, lo, hi), ev.terms.clearance
 
 
-def integrate(fabric: Fabric, params: Params, scene: Scene, q, qd, dt: float, integrator: str = "second_order", limits: bool = True):
+def integrate(fabric: Fabric, params: Params, scene: Scene, q, qd, dt: float, integrator: str = "second_order", limits: bool | str = True):
     """One step. euler: q += dt qd (gfcs_paper); second_order: q += dt qd + dt^2/2 qdd (thesis eq. 3.13-3.14); rk4 for accuracy checks."""
     qdd, clearance = accel(fabric, params, scene, q, qd, dt, limits)
     if integrator == "euler":
@@ -83,6 +86,8 @@ def _program(fabric, scene, q0, qd0, reached, m, *, dt, steps, integrator, limit
     one chunk of `chunk` steps; finish turns the final loop state into a `Trajectory`."""
     if integrator not in INTEGRATORS:
         raise ValueError(f"integrator must be one of {INTEGRATORS}, got '{integrator}'")
+    if limits not in (True, False) and limits not in LIMITERS:
+        raise ValueError(f"limits must be True, False or one of {tuple(LIMITERS)}, got {limits!r}")
     if patience is not None:
         patience = (patience[0], max(1, int(round(patience[1] / dt))), patience[2])  # seconds -> steps
     total = m * steps
@@ -174,7 +179,7 @@ def rollout_sequence(
     dt: float = 0.01,
     steps: int = 700,
     integrator: str = "second_order",
-    limits: bool = True,
+    limits: bool | str = True,
     chunk: int = 25,
     stop_at_goal: bool = True,
     patience: tuple[Distance, float, float] | None = None,
@@ -210,7 +215,7 @@ def rollout_population(
     dt: float = 0.01,
     steps: int = 700,
     integrator: str = "second_order",
-    limits: bool = True,
+    limits: bool | str = True,
     chunk: int = 25,
     patience: tuple[Distance, float, float] | None = None,
     via: Reached | None = None,
@@ -243,16 +248,27 @@ def rollout(fabric: Fabric, params: Params, scene: Scene, q0, qd0, reached: Reac
     return rollout_sequence(fabric, jax.tree.map(lambda a: a[None], params), scene, q0, qd0, reached, **kwargs)
 
 
-def reach(fabric, params: Params, problems: dict, **kwargs) -> Trajectory:
+def reach(fabric, params: Params, problems: dict, aim: str = "joint", stop: str = "goal", settle: float | None = None, **kwargs) -> Trajectory:
     """Roll the fabric out toward each problem's goal, batched with `jax.vmap`.
 
-    `problems` is `fabrax.problems.batch(...)`; `fabric` an `ArmFabric`. Returns
-    a batched `Trajectory`.
+    `problems` is `fabrax.problems.batch(...)`; `fabric` an `ArmFabric`; `aim` as
+    `ArmFabric.with_goal`. stop="goal" ends an arm's rollout at its goal test
+    (`reached`), stop="posture" only once the null-space posture has arrived too
+    (`posture_reached`); with `settle` (rad/s) the test also needs every joint
+    slower than that, so that a rollout ends at rest, not passing through the goal.
+    Returns a batched `Trajectory`.
     """
+    if stop not in ("goal", "posture"):
+        raise ValueError(f"stop must be 'goal' or 'posture', got '{stop}'")
+    goal_test = fabric.reached if stop == "goal" else fabric.posture_reached
+
+    def test(p, q, qd):
+        hit = goal_test(p, q, qd)
+        return hit if settle is None else hit & (jnp.max(jnp.abs(qd)) <= settle)
 
     def one(start_q, start_qd, joint_goal, goal_q, goal_pos, goal_quat, scene):
-        p = fabric.with_goal(params, joint_goal, goal_q, goal_pos, goal_quat)
-        return rollout(fabric, p, scene, start_q, start_qd, fabric.reached, **kwargs)
+        p = fabric.with_goal(params, joint_goal, goal_q, goal_pos, goal_quat, aim)
+        return rollout(fabric, p, scene, start_q, start_qd, test, **kwargs)
 
     b = problems
     return jax.vmap(one)(b["start_q"], b["start_qd"], b["joint_goal"], b["goal_q"], b["goal_pos"], b["goal_quat"], b["scene"])
