@@ -62,10 +62,10 @@ def make_method(cfg: dict, robot):
     m = dict(cfg["method"])
     kind = m.pop("type")
     if kind == "fabric":
-        fabric, params = config.load_fabric(robot, cfg["fabric"])
+        fabric, params = config.load_fabric(robot, {**cfg["fabric"], "goal_frame": cfg["frame"]})
         return FabricMethod(fabric, params, dt=cfg["dt"], t_max=cfg["t_max"], **m)
     if kind == "gfcs":
-        fabric, params = config.load_fabric(robot, cfg["fabric"])
+        fabric, params = config.load_fabric(robot, {**cfg["fabric"], "goal_frame": cfg["frame"]})
         gfcs_cfg = gfcs_config(m, cfg)
         learned = {}
         if m.get("run"):  # a trained sampler from an experiments/gfcs.py run

@@ -38,16 +38,27 @@ class Method(Protocol):
 
 @dataclasses.dataclass
 class FabricMethod:
-    """`gf`: the fabric aimed straight at the goal (joint attractor for joint goals, pose attractor
-    for pose goals), rolled out for at most t_max at dt (gfcs_paper: 7 s at 0.01 s)."""
+    """The pure fabric aimed straight at the goal, rolled out for at most t_max at dt (gfcs_paper:
+    7 s at 0.01 s). aim="pose" (`gf`, the papers' baseline): the end-effector attractor aimed at the
+    goal's pose, a joint goal becoming the null-space posture; aim="joint" (`gf_joint`): the joint
+    attractor aimed at a joint goal. stop: "goal" ends a rollout at the aim's goal test, "posture"
+    once the posture has arrived too; settle: and every joint slower than this (see `rollout.reach`)."""
 
     fabric: Any
     params: Any
     name: str = "gf"
+    aim: str = "pose"
+    stop: str = "goal"
+    settle: float | None = 0.05  # rad/s: a rollout ends at the goal at rest (None: at the first goal-test hit)
     dt: float = 0.01
     t_max: float = 7.0
     batch_size: int = 64
     _run: Any = dataclasses.field(default=None, repr=False)  # a Compiled rollout, kept across calls
+
+    @property
+    def criterion(self) -> str:
+        """The success criterion that matches the aim (the runner's default)."""
+        return "pose" if self.aim == "pose" else "auto"
 
     def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]:
         from fabrax.compiled import Compiled
@@ -56,7 +67,7 @@ class FabricMethod:
 
         if self._run is None:
             steps = int(round(self.t_max / self.dt))
-            self._run = Compiled(jax.jit(lambda b: reach(self.fabric, self.params, b, dt=self.dt, steps=steps)))
+            self._run = Compiled(jax.jit(lambda b: reach(self.fabric, self.params, b, self.aim, self.stop, self.settle, dt=self.dt, steps=steps)))
         out: list[Solution] = []
         for start in range(0, len(problems), self.batch_size):
             chunk = problems[start : start + self.batch_size]

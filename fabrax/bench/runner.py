@@ -8,6 +8,7 @@ and PNG plots (success per class, end-effector path lengths).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -33,7 +34,11 @@ def run(
     frame: str = "panda_hand",
     progress: bool = True,
 ) -> list[dict]:
-    """Rows of metrics, one per problem; invalid problems are reported (valid_problem false), not run."""
+    """Rows of metrics, one per problem; invalid problems are reported (valid_problem false), not run.
+    With goal.criterion "auto", a method's own `criterion` (e.g. "pose" for a pose-aimed fabric)
+    decides `success`."""
+    if goal.criterion == "auto" and getattr(method, "criterion", "auto") != "auto":
+        goal = dataclasses.replace(goal, criterion=method.criterion)
     valid = [p for p in problems if p.valid]
     chunk = getattr(method, "batch_size", 1)
     solutions = {}
@@ -67,18 +72,20 @@ def summary_table(rows: list[dict]) -> str:
     """Markdown: per class and method, success and collision rates over valid problems, and the
     mean ± std of every metric over the successful ones."""
     keys = sorted({(r["method"], r["class"]) for r in rows})
-    head = "| method | class | valid | success % | collision % | " + " | ".join(METRICS) + " |"
-    lines = [head, "|" + "---|" * 2 + "---:|" * (3 + len(METRICS))]
+    head = "| method | class | valid | success % | collision % | joint % | pose % | keypoints % | " + " | ".join(METRICS) + " |"
+    lines = [head, "|" + "---|" * 2 + "---:|" * (6 + len(METRICS))]
     for method, cls in keys:
         sel = [r for r in rows if r["method"] == method and r["class"] == cls and r["valid_problem"]]
         ok = [r for r in sel if r["success"]]
         n = len(sel)
-        succ = 100.0 * len(ok) / n if n else float("nan")
-        coll = 100.0 * sum(r["collision"] for r in sel) / n if n else float("nan")
+        pct = lambda k: "–" if not n or any(r.get(k) is None for r in sel) else f"{100.0 * sum(bool(r[k]) for r in sel) / n:.0f}"  # noqa: E731
         cells = [_mean_std([r[m] for r in ok]) for m in METRICS]
         total = sum(1 for r in rows if r["method"] == method and r["class"] == cls)
-        lines.append(f"| {method} | {cls} | {n}/{total} | {succ:.0f} | {coll:.0f} | " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n\nMetrics are means ± std over successful problems; lengths in m (EE) and rad (C-space), times in s.\n"
+        by = " | ".join(pct(k) for k in ("success_joint", "success_pose", "success_keypoints"))
+        lines.append(f"| {method} | {cls} | {n}/{total} | {pct('success')} | {pct('collision')} | {by} | " + " | ".join(cells) + " |")
+    note = "success by the run's criterion; joint / pose / keypoints: success by each criterion (joint tolerance, pose tolerance, "
+    note += "mean keypoint distance). Metrics are means ± std over successful problems; lengths in m (EE) and rad (C-space), times in s."
+    return "\n".join(lines) + "\n\n" + note + "\n"
 
 
 def write(rows: list[dict], out: Path, meta: dict | None = None) -> None:
