@@ -48,13 +48,18 @@ class ArmFabric(Fabric):
             p[k] = jnp.broadcast_to(jnp.asarray(v, p[k].dtype), p[k].shape)
         return {**params, name: p}
 
-    def with_joint_goal(self, params: Params, q_goal: jax.Array) -> Params:
-        """Aim the fabric at a joint configuration (also: a GFCS command)."""
+    def with_joint_goal(self, params: Params, q_goal: jax.Array, pose: bool = False) -> Params:
+        """Aim the fabric at a joint configuration (also: a GFCS command). pose=True adds the
+        end-effector attractor on the pose of `goal_frame` at q_goal: the hand leads in task space
+        while the joint attractor shapes the arm (thesis §3.3; both targets agree at q_goal)."""
         if not self._has("goal"):
             raise ValueError("this fabric has no 'goal' joint attractor term")
         params = self._set(params, "goal", target=q_goal, weight=1.0)
-        params = self._set(params, "ee", weight=0.0)
-        return self._set(params, "posture", weight=0.0)
+        params = self._set(params, "posture", weight=0.0)
+        if pose and self._has("ee"):
+            at_goal = frame_pose(self.robot, q_goal, self.goal_frame)
+            return self._set(params, "ee", target_pos=at_goal.translation(), target_quat=at_goal.rotation().wxyz, weight=1.0)
+        return self._set(params, "ee", weight=0.0)
 
     def with_pose_goal(self, params: Params, position: jax.Array, quat_wxyz: jax.Array, posture: jax.Array | None = None) -> Params:
         """Aim the fabric at an end-effector pose of `goal_frame`, holding `posture` in the null space;

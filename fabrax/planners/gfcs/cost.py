@@ -71,6 +71,7 @@ def population_cost(
     enough: int | None = None,
     patience: float | None = None,
     via_tolerance: float | None = None,
+    final_pose: bool = True,
 ) -> tuple[jax.Array, Trajectory]:
     """GFCOP costs of candidates zs (P, n, dof) and their trajectories, rolled out together.
 
@@ -80,11 +81,15 @@ def population_cost(
     ends, charged t_max: the arm is at rest or chattering against an obstacle (`rollout_sequence`).
     via_tolerance: joint distance (rad, 2-norm) at which an intermediate command counts as passed
     (default: the fabric's goal tolerance, i.e. the arm nearly stops at every command).
+    final_pose: the last segment also attracts the hand to its pose at the goal
+    (`ArmFabric.with_joint_goal(pose=True)`); the goal test stays the joint tolerance.
     """
     robot = fabric.robot
     commands = to_commands(zs, robot.lower, robot.upper)
     goals = jnp.concatenate([commands, jnp.broadcast_to(problem.goal_q, (zs.shape[0], 1, robot.dof))], axis=1)
+    final = fabric.with_joint_goal(params, problem.goal_q, pose=final_pose)
     params_seqs = jax.vmap(jax.vmap(lambda g: fabric.with_joint_goal(params, g)))(goals)
+    params_seqs = jax.tree.map(lambda a, f: a.at[:, -1].set(f), params_seqs, final)
     wait = None if patience is None else (lambda p, q: jnp.linalg.norm(q - p["goal"]["target"]), patience, MIN_PROGRESS)
     via = None if via_tolerance is None else lambda p, q, qd: fabric.joint_reached(p, q, qd, via_tolerance)
     trajs = rollout_population(

@@ -67,8 +67,11 @@ def with_obstacles(scene: Scene, obstacles: list[dict]) -> Scene:
     return from_dict(data).pad(**COMMON_CAPACITY)
 
 
-def reexecute(fabric, params, problem: GFCOP, commands: jax.Array, scene: Scene, dt: float = 0.01, steps: int = 700) -> Trajectory:
-    """Execute commands (n, dof) then the goal with the fabric in `scene`, without re-optimising."""
+def reexecute(fabric, params, problem: GFCOP, commands: jax.Array, scene: Scene, dt: float = 0.01, steps: int = 700, final_pose: bool = True) -> Trajectory:
+    """Execute commands (n, dof) then the goal with the fabric in `scene`, without re-optimising
+    (final_pose as `GFCSConfig.final_pose`: the goal segment as the solver ran it)."""
     goals = jnp.concatenate([jnp.asarray(commands, jnp.float32), problem.goal_q[None]], axis=0)
     params_seq = jax.vmap(lambda g: fabric.with_joint_goal(params, g))(goals)
+    final = fabric.with_joint_goal(params, problem.goal_q, pose=final_pose)
+    params_seq = jax.tree.map(lambda a, f: a.at[-1].set(f), params_seq, final)
     return rollout_sequence(fabric, params_seq, scene, problem.start_q, problem.start_qd, fabric.reached, dt=dt, steps=steps)

@@ -38,6 +38,7 @@ class GFCSConfig:
     via_tolerance: float | None = None  # rad: an intermediate command counts as passed within this (None: the goal tolerance)
     patience: float | None = 1.0  # s without progress toward a command ends its segment, charged t_max (None: off)
     stop_after: float | None = 0.5  # stop a batch once this fraction of it arrived cleanly (None: run all to the end)
+    final_pose: bool = True  # the goal segment also attracts the hand to its pose at the goal (`population_cost`)
 
     @property
     def enough(self) -> int | None:
@@ -79,6 +80,7 @@ def _evaluate(fabric, params: Params, problem: GFCOP, pop: jax.Array, cfg: GFCSC
         enough=cfg.enough,
         patience=cfg.patience,
         via_tolerance=cfg.via_tolerance,
+        final_pose=cfg.final_pose,
     )
     k = jnp.argmin(costs)
     return costs, jax.tree.map(lambda a: a[k], trajs)
