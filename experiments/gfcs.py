@@ -91,7 +91,7 @@ def reactive(cfg: dict, robot, fabric, params, problems, rows) -> dict:
     from fabrax.planners.gfcs.reactive import blocking_cuboids, reexecute, with_obstacles
 
     steps = int(round(cfg["t_max"] / cfg["dt"]))
-    execute = jax.jit(lambda prob, commands, scene: reexecute(fabric, params, prob, commands, scene, cfg["dt"], steps, gfcs_cfg.final_pose))  # compiled once
+    execute = jax.jit(lambda prob, commands, scene: reexecute(fabric, params, prob, commands, scene, cfg["dt"], steps, cfg["method"]["final_pose"]))  # compiled once
     by_name = {p.name: p for p in problems}
     method = cfg["reactive"]["method"]
     rng = np.random.default_rng(cfg["seed"])
