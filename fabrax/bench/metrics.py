@@ -22,6 +22,7 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
+import jaxlie
 import numpy as np
 
 from fabrax.bench.checker import check_path
@@ -69,8 +70,6 @@ def _goal_pose(robot: Robot, problem: Problem, frame: str):
 def _keypoint_error(robot: Robot, q, goal_pos, goal_quat, goal_frame_pos, goal_frame_quat):
     """Mean distance of the keypoints at q to the keypoints at the goal pose (keypoints are rigid with
     the goal frame, so the goal's keypoints are the current ones moved by goal pose * current pose^-1)."""
-    import jaxlie
-
     now = keypoints(robot, q)
     current = jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3(goal_frame_quat), goal_frame_pos)
     goal = jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3(goal_quat), goal_pos)
