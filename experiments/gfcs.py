@@ -7,6 +7,11 @@ Trains the energy-based sampler on the class's train problems (Algorithm 2; chec
 solve, so re-running with the same hydra.run.dir resumes), then solves the test problems with the
 uniform sampler (`gfcs`) and the learned one (`gfcs_learned`), reporting rows after batch 1 and
 after the last batch. Writes sampler.msgpack, results.json, summary.md and plots in the run directory.
+
+The reactive study can also re-execute the solutions of an earlier run (a `fabrax bench method=gfcs`
+output directory, or this script's) without solving again; its settings must match this run's:
+
+    python experiments/gfcs.py class_name=box evaluate=[] reactive.method=gfcs reactive.results=bench_out/gfcs50
 """
 
 from __future__ import annotations
@@ -73,10 +78,34 @@ def main(dcfg: DictConfig) -> None:
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
     }
     if cfg["reactive"]["n_obstacles"] > 0:
-        meta["reactive"] = reactive(cfg, robot, fabric, params, test, rows)
+        solved = rows if not cfg["reactive"]["results"] else saved_rows(cfg, Path(cfg["reactive"]["results"]))
+        meta["reactive"] = reactive(cfg, robot, fabric, params, test, solved)
         print(f"[gfcs] reactive re-execution: {meta['reactive']['summary']}")
     write(rows, out, meta)
-    print(summary_table(rows))
+    if rows:
+        print(summary_table(rows))
+
+
+SAME = ("dt", "t_max", "fabric", "frame")  # settings a saved solution's re-execution depends on
+
+
+def saved_rows(cfg: dict, path: Path) -> list[dict]:
+    """The rows of a saved run (its directory or results.json), refused when it was solved with other settings."""
+    import json
+
+    path = path / "results.json" if path.is_dir() else path
+    if not path.is_file():
+        raise SystemExit(f"reactive.results: no results.json at {path}")
+    saved = json.loads(path.read_text())
+    from fabrax import config
+
+    old = saved.get("meta", {}).get("config", {})
+    as_dict = lambda f: config.load("fabric", f) if isinstance(f, str) else f  # noqa: E731
+    differ = [k for k in SAME if k in old and (as_dict(old[k]) != as_dict(cfg[k]) if k == "fabric" else old[k] != cfg[k])]
+    differ += [f"method.{k}" for k in ("final_pose", "via_tolerance") if old.get("method", {}).get(k) != cfg["method"].get(k)]
+    if differ:
+        raise SystemExit(f"reactive.results: {path} was solved with other settings: {', '.join(differ)}")
+    return saved["rows"]
 
 
 def reactive(cfg: dict, robot, fabric, params, problems, rows) -> dict:
@@ -85,20 +114,22 @@ def reactive(cfg: dict, robot, fabric, params, problems, rows) -> dict:
     import jax.numpy as jnp
     import numpy as np
 
-    from fabrax.bench.checker import check_path
     from fabrax.bench.metrics import Goal, evaluate
     from fabrax.planners.gfcs.cost import GFCOP
     from fabrax.planners.gfcs.reactive import blocking_cuboids, reexecute, with_obstacles
+    from fabrax.problems.checker import check_path
 
     steps = int(round(cfg["t_max"] / cfg["dt"]))
-    execute = jax.jit(lambda prob, commands, scene: reexecute(fabric, params, prob, commands, scene, cfg["dt"], steps, cfg["method"]["final_pose"]))  # compiled once
+    final_pose, via = cfg["method"]["final_pose"], cfg["method"]["via_tolerance"]
+    dt = cfg["dt"]
+    execute = jax.jit(lambda prob, commands, scene: reexecute(fabric, params, prob, commands, scene, dt, steps, final_pose, via))  # compiled once
     by_name = {p.name: p for p in problems}
     method = cfg["reactive"]["method"]
     rng = np.random.default_rng(cfg["seed"])
     out = []
     for row in rows:
-        if row["method"] != method or not row.get("success"):
-            continue
+        if row["method"] != method or not row.get("success") or row["problem"] not in by_name:
+            continue  # another method's, a failed one, or another class's (a saved multi-class run)
         p = by_name[row["problem"]]
         prob = GFCOP.from_problem(p)
         commands = np.asarray(row["info"]["commands"])

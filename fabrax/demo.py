@@ -28,8 +28,8 @@ def main(argv: list[str] | None = None) -> int:
     import jax
 
     from fabrax import config
-    from fabrax.bench import check_path
     from fabrax.problems import batch
+    from fabrax.problems.checker import check_path
     from fabrax.problems.generators import demo_problem
     from fabrax.rollout import reach
 

@@ -22,7 +22,7 @@ import jax
 import numpy as np
 
 from fabrax import config
-from fabrax.bench.checker import check_path
+from fabrax.problems.checker import check_path
 from fabrax.planners.gfcs import GFCOP, GFCSConfig, solve
 
 robot = config.load_robot("panda_mbm")

@@ -7,6 +7,7 @@ import pytest
 
 from fabrax import config
 from fabrax.planners.gfcs import GFCOP, GFCSConfig, sequence_cost, solve, to_commands, to_unconstrained, uniform_sampler
+from fabrax.robot import frame_pose
 from fabrax.scene import from_dict
 
 READY = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785], np.float32)
@@ -44,6 +45,16 @@ def test_cost_of_a_reaching_sequence_is_lower(fabric_params, panda):
     assert bool(tr_good.reached) and float(cost_good) == pytest.approx(float(jnp.sum(tr_good.segment_times)))
     assert float(cost_far) > float(cost_good)
     assert float(cost_good) < 2 * 1.5  # within the two segments' budgets, no penalty
+    # the length term adds the hand's path length, as the benchmark's EE-length metric measures it
+    cost_len, _ = jax.jit(lambda z: sequence_cost(fabric, params, problem, z, length_weight=2.0, **kw))(z_good)
+    q = np.asarray(tr_good.q)[: int(tr_good.length)]
+    hand = np.stack([np.asarray(frame_pose(panda, jnp.asarray(qi), fabric.goal_frame).translation()) for qi in [*q[::5], q[-1]]])
+    chord = np.linalg.norm(np.diff(hand, axis=0), axis=1).sum()  # a lower bound of the path length
+    assert float(cost_len) - float(cost_good) == pytest.approx(2.0 * chord, rel=0.02)
+    # a command at the start is passed at once: the sequence is the fabric aimed at the goal alone
+    z_direct = to_unconstrained(jnp.asarray(READY)[None], panda.lower, panda.upper)
+    _, tr_direct = jax.jit(lambda z: sequence_cost(fabric, params, problem, z, **kw))(z_direct)
+    assert bool(tr_direct.reached) and float(tr_direct.segment_times[0]) <= 0.02
 
 
 def test_cma_es_best_so_far_improves(fabric_params):
@@ -216,3 +227,28 @@ def test_gfcs_learned_bench_method_loads_a_run(tmp_path, shared_data):
     assert {r["method"] for r in rows} == {"gfcs_learned", "gfcs_learned (1 b)"}
     with pytest.raises(SystemExit, match="Missing mandatory value"):
         cli.main(["method=gfcs_learned", "classes=[box]", "limit=1"])
+
+
+def test_reactive_study_refuses_a_saved_run_with_other_settings(tmp_path):
+    """experiments/gfcs.py re-executes a saved run's commands only if they were solved with the same
+    dt, budget, fabric, frame and goal segment; otherwise one line names what differs."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    from fabrax import config as fconfig
+
+    spec = importlib.util.spec_from_file_location("gfcs_experiment", Path(__file__).parents[1] / "experiments" / "gfcs.py")
+    experiment = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(experiment)
+    cfg = {"dt": 0.01, "t_max": 7.0, "fabric": "panda", "frame": "panda_hand", "method": {"final_pose": True, "via_tolerance": 0.5}}
+    saved = {**cfg, "fabric": fconfig.load("fabric", "panda")}  # bench runs store the composed fabric
+    rows = [{"method": "gfcs", "problem": "box/0051", "success": True, "info": {"commands": [[0.0] * 7]}}]
+    (tmp_path / "results.json").write_text(json.dumps({"meta": {"config": saved}, "rows": rows}))
+    assert experiment.saved_rows(cfg, tmp_path) == rows
+    with pytest.raises(SystemExit, match="dt, method.final_pose, method.via_tolerance"):
+        experiment.saved_rows({**cfg, "dt": 0.02, "method": {"final_pose": False, "via_tolerance": None}}, tmp_path)
+    with pytest.raises(SystemExit, match="fabric"):
+        experiment.saved_rows({**cfg, "fabric": {**saved["fabric"], "energization": "none"}}, tmp_path)
+    with pytest.raises(SystemExit, match="no results.json"):
+        experiment.saved_rows(cfg, tmp_path / "missing")

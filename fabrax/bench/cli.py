@@ -52,7 +52,7 @@ def gfcs_config(method: dict, cfg: dict):
     """GFCS solver settings from a method config (configs/method/gfcs.yaml) and the run's dt and t_max."""
     from fabrax.planners.gfcs import GFCSConfig
 
-    keys = ("n_commands", "population", "batches", "std_init", "stop_after", "patience", "via_tolerance", "final_pose")
+    keys = ("n_commands", "population", "batches", "std_init", "stop_after", "patience", "via_tolerance", "final_pose", "length_weight", "direct")
     return GFCSConfig(**{k: method[k] for k in keys}, dt=cfg["dt"], t_max=cfg["t_max"])
 
 

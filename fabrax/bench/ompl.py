@@ -15,7 +15,7 @@ import time
 import jax.numpy as jnp
 import numpy as np
 
-from fabrax.bench.checker import densify
+from fabrax.problems.checker import densify
 from fabrax.problems.clearance import state_clearances
 from fabrax.problems.problem import Problem
 from fabrax.robot.robot import Robot

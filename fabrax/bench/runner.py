@@ -109,6 +109,8 @@ def _jsonable(x):
 
 
 def plots(rows: list[dict], out: Path) -> None:
+    if not rows:  # e.g. an experiment that only re-executes saved solutions
+        return
     import matplotlib
 
     matplotlib.use("Agg")

@@ -24,7 +24,6 @@ from fabrax.fabrics.terms import TERMS
 from fabrax.robot.kinematics import frame_pose
 from fabrax.robot.robot import Robot
 
-
 AIMS = ("joint", "pose")
 
 

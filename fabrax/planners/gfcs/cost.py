@@ -6,9 +6,10 @@ never proposes an infeasible command); the final goal q_g is appended as
 command n+1. The fabric is rolled out through the sequence, each command until
 it is within epsilon or t_max has passed (eqs. 1-3, 5-7), and
 
-    cost(y) = sum_i t*_i + M [final goal not reached] + M_c [collision]    (eq. 8 plus a collision penalty)
+    cost(y) = sum_i t*_i + M [final goal not reached] + M_c [collision] + w L_ee    (eq. 4 plus two terms)
 
-so a colliding candidate never beats a clean one.
+so a colliding candidate never beats a clean one. L_ee is the path length of the
+fabric's goal frame (the paper's "EE length" metric, §IV); w = 0 is eq. 4.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 from flax import struct
 
 from fabrax.fabrics.fabric import Params
+from fabrax.robot import frame_pose
 from fabrax.rollout.rollout import rollout_population
 from fabrax.rollout.trajectory import Trajectory
 from fabrax.scene import COMMON_CAPACITY, Scene
@@ -72,6 +74,7 @@ def population_cost(
     patience: float | None = None,
     via_tolerance: float | None = None,
     final_pose: bool = True,
+    length_weight: float = 0.0,
 ) -> tuple[jax.Array, Trajectory]:
     """GFCOP costs of candidates zs (P, n, dof) and their trajectories, rolled out together.
 
@@ -83,6 +86,7 @@ def population_cost(
     (default: the fabric's goal tolerance, i.e. the arm nearly stops at every command).
     final_pose: the last segment also attracts the hand to its pose at the goal
     (`ArmFabric.with_joint_goal(pose=True)`); the goal test stays the joint tolerance.
+    length_weight: s per metre of goal-frame path added to the cost (0: the paper's time-only cost).
     """
     robot = fabric.robot
     commands = to_commands(zs, robot.lower, robot.upper)
@@ -106,7 +110,17 @@ def population_cost(
         steps=steps,
     )
     costs = jnp.sum(trajs.segment_times, axis=-1) + penalty * (~trajs.reached) + collision_penalty * (trajs.min_clearance < 0.0)
+    if length_weight:
+        costs = costs + length_weight * ee_length(fabric, trajs.q)
     return costs, trajs
+
+
+def ee_length(fabric, qs: jax.Array) -> jax.Array:
+    """Path length (m) of the fabric's goal frame along configurations qs (..., T, dof); rows past a
+    trajectory's end repeat its last state and add nothing."""
+    pos = jax.vmap(lambda q: frame_pose(fabric.robot, q, fabric.goal_frame).translation())(qs.reshape(-1, qs.shape[-1]))
+    pos = pos.reshape(*qs.shape[:-1], 3)
+    return jnp.sum(jnp.linalg.norm(jnp.diff(pos, axis=-2), axis=-1), axis=-1)
 
 
 def sequence_cost(fabric, params: Params, problem: GFCOP, z: jax.Array, **kwargs) -> tuple[jax.Array, Trajectory]:

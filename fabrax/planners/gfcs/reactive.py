@@ -14,8 +14,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fabrax.bench.checker import check_path
 from fabrax.planners.gfcs.cost import GFCOP
+from fabrax.problems.checker import check_path
 from fabrax.robot.kinematics import sphere_centers
 from fabrax.rollout.rollout import rollout_sequence
 from fabrax.rollout.trajectory import Trajectory
@@ -67,11 +67,14 @@ def with_obstacles(scene: Scene, obstacles: list[dict]) -> Scene:
     return from_dict(data).pad(**COMMON_CAPACITY)
 
 
-def reexecute(fabric, params, problem: GFCOP, commands: jax.Array, scene: Scene, dt: float = 0.01, steps: int = 700, final_pose: bool = True) -> Trajectory:
+def reexecute(
+    fabric, params, problem: GFCOP, commands: jax.Array, scene: Scene, dt: float = 0.01, steps: int = 700, final_pose: bool = True, via_tolerance=None
+) -> Trajectory:
     """Execute commands (n, dof) then the goal with the fabric in `scene`, without re-optimising
-    (final_pose as `GFCSConfig.final_pose`: the goal segment as the solver ran it)."""
+    (final_pose, via_tolerance as in `GFCSConfig`: the sequence as the solver ran it)."""
     goals = jnp.concatenate([jnp.asarray(commands, jnp.float32), problem.goal_q[None]], axis=0)
     params_seq = jax.vmap(lambda g: fabric.with_joint_goal(params, g))(goals)
     final = fabric.with_joint_goal(params, problem.goal_q, pose=final_pose)
     params_seq = jax.tree.map(lambda a, f: a.at[-1].set(f), params_seq, final)
-    return rollout_sequence(fabric, params_seq, scene, problem.start_q, problem.start_qd, fabric.reached, dt=dt, steps=steps)
+    via = None if via_tolerance is None else lambda p, q, qd: fabric.joint_reached(p, q, qd, via_tolerance)
+    return rollout_sequence(fabric, params_seq, scene, problem.start_q, problem.start_qd, fabric.reached, dt=dt, steps=steps, via=via)

@@ -20,7 +20,7 @@ from evosax.algorithms import CMA_ES
 
 from fabrax.compiled import Compiled
 from fabrax.fabrics.fabric import Params
-from fabrax.planners.gfcs.cost import GFCOP, population_cost, to_commands
+from fabrax.planners.gfcs.cost import GFCOP, population_cost, to_commands, to_unconstrained
 from fabrax.rollout.trajectory import Trajectory
 
 
@@ -39,6 +39,8 @@ class GFCSConfig:
     patience: float | None = 1.0  # s without progress toward a command ends its segment, charged t_max (None: off)
     stop_after: float | None = 0.5  # stop a batch once this fraction of it arrived cleanly (None: run all to the end)
     final_pose: bool = True  # the goal segment also attracts the hand to its pose at the goal (`population_cost`)
+    length_weight: float = 0.0  # s per metre of goal-frame path added to the cost (0: gfcs_paper eq. 4)
+    direct: bool = False  # the first batch's first candidate commands the start: the fabric aimed straight at the goal
 
     @property
     def enough(self) -> int | None:
@@ -81,6 +83,7 @@ def _evaluate(fabric, params: Params, problem: GFCOP, pop: jax.Array, cfg: GFCSC
         patience=cfg.patience,
         via_tolerance=cfg.via_tolerance,
         final_pose=cfg.final_pose,
+        length_weight=cfg.length_weight,
     )
     k = jnp.argmin(costs)
     return costs, jax.tree.map(lambda a: a[k], trajs)
@@ -122,6 +125,8 @@ def solve(fabric, params: Params, problem: GFCOP, key: jax.Array, cfg: GFCSConfi
         samples = uniform_sampler(k_samp, robot, cfg.population, cfg.n_commands)
     if samples.shape != (cfg.population, cfg.n_commands, robot.dof):
         raise ValueError(f"samples: expected shape {(cfg.population, cfg.n_commands, robot.dof)}, got {samples.shape}")
+    if cfg.direct:  # every command at the start is passed at once: the rollout is the fabric alone
+        samples = jnp.asarray(samples).at[0].set(to_unconstrained(problem.start_q, robot.lower, robot.upper))
     keys = jax.random.split(key, cfg.batches)
     first_c, compile_s = first.get(problem, samples, keys[0])
     step_c = None

@@ -1,4 +1,5 @@
-"""The exact checker every method is judged by: collision spheres against the scene,
+"""The exact checker every method is judged by (below the pillars: benchmarks, the GFCS reactive
+study and skills count collisions with it): collision spheres against the scene,
 self-collision sphere pairs and joint limits, re-checked along the whole path.
 
 A trajectory is interpolated linearly in joint space so that consecutive
