@@ -28,6 +28,25 @@ def test_bad_problem_raises_named_field(panda, kwargs, field):
         make_problem(panda, scene={"obstacles": []}, **kwargs)
 
 
+def test_loaded_problem_with_nan_is_flagged_not_run(panda):
+    """Loaders build Problems directly and `flag` them: NaN in a state or the scene (which fails no
+    comparison) marks the problem invalid with the field's name instead of crashing a run later."""
+    import dataclasses
+
+    from fabrax.problems import flag
+
+    p = make_problem(panda, READY, {"obstacles": [{"type": "cuboid", "center": [1.0, 1.0, 0.6], "size": [0.1] * 3}]}, goal_q=READY)
+    q = np.array(READY)
+    q[2] = np.nan
+    assert flag(panda, p).valid
+    bad = flag(panda, dataclasses.replace(p, start_q=q))
+    assert not bad.valid and "start_q" in bad.reason
+    center = np.asarray(p.scene.cuboids.center).copy()
+    center[0, 0] = np.inf
+    bad = flag(panda, dataclasses.replace(p, scene=p.scene.replace(cuboids=p.scene.cuboids.replace(center=center))))
+    assert not bad.valid and "scene.cuboids.center" in bad.reason
+
+
 def test_start_in_collision_is_rejected(panda):
     with pytest.raises(ValueError, match="start_q is in collision"):
         make_problem(panda, READY, WALL, goal_q=READY)

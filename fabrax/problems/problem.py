@@ -10,6 +10,7 @@ import dataclasses
 import math
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -66,11 +67,21 @@ def make_problem(robot: Robot, start_q, scene: Scene | dict, goal_q=None, goal_p
 
 
 def validate(robot: Robot, p: Problem, collision_margin: float = 0.0) -> None:
-    """Raise ValueError naming the field if the problem is malformed, outside the joint limits, or
-    starts (or has its joint goal) in collision with the scene or itself."""
+    """Raise ValueError naming the field if the problem is malformed (wrong length, NaN), outside the
+    joint limits, or starts (or has its joint goal) in collision with the scene or itself."""
     lo, hi = np.asarray(robot.lower), np.asarray(robot.upper)
     if p.goal_q is None and p.goal_pose is None:
         raise ValueError(f"{p.name}: needs goal_q or goal_pose")
+    for field, v, n in (("start_q", p.start_q, robot.dof), ("start_qd", p.start_qd, robot.dof), ("goal_q", p.goal_q, robot.dof)):
+        if v is not None:
+            _vector(v, f"{p.name}.{field}", n)  # loaders build Problems directly: NaN fails no comparison below
+    if p.goal_pose is not None:
+        _vector(p.goal_pose[0], f"{p.name}.goal_pose.position", 3)
+        _vector(p.goal_pose[1], f"{p.name}.goal_pose.quat_wxyz", 4)
+    for path, leaf in jax.tree_util.tree_leaves_with_path(p.scene):
+        a = np.asarray(leaf)
+        if np.issubdtype(a.dtype, np.floating) and not np.all(np.isfinite(a)):
+            raise ValueError(f"{p.name}.scene{jax.tree_util.keystr(path)}: NaN or infinite value")
     for field, q in (("start_q", p.start_q), ("goal_q", p.goal_q)):
         if q is None:
             continue
