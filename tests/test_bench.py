@@ -226,6 +226,26 @@ def test_bench_cli_end_to_end(tmp_path):
         main(["nope=1"])
 
 
+@pytest.mark.parametrize(
+    "arg, message",
+    [
+        ("limit=0", "limit must be a positive integer"),
+        ("limit=-1", "limit must"),
+        ("limit=abc", "limit must"),
+        ("classes=box", r"classes=\[box,cage\]"),
+        ("split=foo", "split must be train, test or all"),
+        ("dt=0", "dt must be a positive number"),
+        ("t_max=-1", "t_max must"),
+    ],
+)
+def test_bench_cli_rejects_bad_keys_in_one_line(tmp_path, arg, message):
+    """Before anything loads: a bad value of the run's own keys is one line naming the key."""
+    from fabrax.bench.cli import main
+
+    with pytest.raises(SystemExit, match=message):
+        main(["method=gf", "problems=mbm_like", arg, f"out={tmp_path}", "progress=false"])
+
+
 @pytest.mark.skipif(importlib.util.find_spec("ompl") is None, reason="OMPL is not installed (pip install -e '.[bench]')")
 def test_ompl_rrtconnect_through_the_cli(tmp_path):
     out = tmp_path / "rrt"

@@ -33,6 +33,20 @@ def compose(overrides: list[str]):
         raise SystemExit(f"fabrax bench: {e}") from None
 
 
+def check(cfg: dict) -> None:
+    """One-line errors for the run's own keys, before anything is loaded or compiled."""
+    limit, classes = cfg["limit"], cfg["classes"]
+    if limit is not None and (isinstance(limit, bool) or not isinstance(limit, int) or limit < 1):
+        raise SystemExit(f"fabrax bench: limit must be a positive integer (problems per class) or null, got {limit!r}")
+    if classes is not None and not (isinstance(classes, list) and classes and all(isinstance(c, str) for c in classes)):
+        raise SystemExit(f"fabrax bench: classes must be a non-empty list of class names, e.g. classes=[box,cage], got {classes!r}")
+    if cfg["split"] not in ("train", "test", "all"):
+        raise SystemExit(f"fabrax bench: split must be train, test or all, got {cfg['split']!r}")
+    for key in ("dt", "t_max"):
+        if isinstance(cfg[key], bool) or not isinstance(cfg[key], (int, float)) or not cfg[key] > 0:
+            raise SystemExit(f"fabrax bench: {key} must be a positive number (s), got {cfg[key]!r}")
+
+
 def load_problems(cfg: dict, robot) -> list:
     kind = cfg["problems"]
     if kind == "mbm":
@@ -89,6 +103,7 @@ def run_bench(cfg: dict, out: Path) -> list[dict]:
     from fabrax.bench.metrics import Goal
     from fabrax.bench.runner import run, summary_table, write
 
+    check(cfg)
     robot_name = cfg["robot"] or ("panda_mbm" if cfg["problems"] == "mbm" else "panda")
     robot = config.load_robot(robot_name)
     problems = load_problems(cfg, robot)
