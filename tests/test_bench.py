@@ -279,3 +279,12 @@ def test_bench_cli_gfcs_reports_batch_variants(tmp_path):
     assert final["plan_time_s"] >= first["plan_time_s"] > 0  # the final row includes the first batch's time
     assert final["info"]["cost"] <= first["info"]["cost"]  # best-so-far never worsens
     assert len(final["info"]["commands"]) == 1 and len(final["info"]["batch_wall_s"]) == 2
+
+
+def test_bench_cli_without_data_says_what_to_set(tmp_path, monkeypatch):
+    from fabrax.bench.cli import main
+
+    monkeypatch.delenv("FABRAX_DATA", raising=False)
+    monkeypatch.chdir(tmp_path)  # no ../shared/data from here
+    with pytest.raises(SystemExit, match="set FABRAX_DATA or data_dir="):
+        main(["method=gf", "problems=mbm", "classes=[box]", "limit=1", f"out={tmp_path}", "progress=false"])

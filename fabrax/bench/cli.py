@@ -104,9 +104,15 @@ def run_bench(cfg: dict, out: Path) -> list[dict]:
     from fabrax.bench.runner import run, summary_table, write
 
     check(cfg)
+    if cfg["data_dir"] and not os.environ.get("FABRAX_DATA"):
+        os.environ["FABRAX_DATA"] = str(Path(cfg["data_dir"]).resolve())  # robot configs read their data files from it
     robot_name = cfg["robot"] or ("panda_mbm" if cfg["problems"] == "mbm" else "panda")
-    robot = config.load_robot(robot_name)
-    problems = load_problems(cfg, robot)
+    try:
+        robot = config.load_robot(robot_name)
+        problems = load_problems(cfg, robot)
+    except (ValueError, FileNotFoundError) as e:
+        hint = "" if os.environ.get("FABRAX_DATA") else " (set FABRAX_DATA or data_dir= to the shared data folder, e.g. ../shared/data)"
+        raise SystemExit(f"fabrax bench: {e}{hint}") from None
     method = make_method(cfg, robot)
     t0 = time.perf_counter()
     rows = run(method, robot, problems, goal=Goal(**cfg["goal"]), margin=cfg["margin"], frame=cfg["frame"], progress=cfg["progress"])
