@@ -118,3 +118,15 @@ def test_skill_view_plays_plain_and_reshaped_geodesics(viewer, tmp_path):
     assert len(viewer.ghosts) == 2
     with pytest.raises(ValueError, match="not a skills run"):
         skill_view(viewer, tmp_path / "missing")
+
+
+BAD_OPTIONS = [(["demo", "--port", "70000"], "--port must be in 0-65535"), (["demo", "--seconds", "-1"], "--seconds must")]
+
+
+@pytest.mark.parametrize("args, message", BAD_OPTIONS)
+def test_view_cli_rejects_bad_options_before_serving(args, message, capsys):
+    from fabrax.viz.cli import main
+
+    with pytest.raises(SystemExit):
+        main(args)
+    assert message in capsys.readouterr().err

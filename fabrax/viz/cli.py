@@ -28,6 +28,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.mode in ("results", "skill") and not args.runs:
         parser.error(f"{args.mode}: give a run directory")
+    if not 0 <= args.port <= 65535:  # viser's server thread would fail and leave this one waiting forever
+        parser.error(f"--port must be in 0-65535, got {args.port}")
+    if args.seconds is not None and not args.seconds > 0:
+        parser.error(f"--seconds must be positive, got {args.seconds}")
 
     from fabrax.viz import app
 
