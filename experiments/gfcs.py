@@ -60,7 +60,10 @@ def main(dcfg: DictConfig) -> None:
         train = [p for p in problems_for(cfg, robot, "train", cfg["train_limit"]) if p.valid]
         print(f"[gfcs] {cfg['class_name']}: learning on {len(train)} train problems, {ss_cfg.passes} passes -> {out}")
         t0 = time.perf_counter()
-        learner = learn(fabric, params, train, gfcs_cfg, ss_cfg, out / "sampler.msgpack", enc, log=lambda s: print("[gfcs]", s, flush=True))
+        try:
+            learner = learn(fabric, params, train, gfcs_cfg, ss_cfg, out / "sampler.msgpack", enc, log=lambda s: print("[gfcs]", s, flush=True))
+        except ValueError as e:  # a checkpoint of other settings, or an unreadable one
+            raise SystemExit(f"experiments/gfcs.py: {e}") from None
         learn_s = time.perf_counter() - t0
 
     test = problems_for(cfg, robot, "test", cfg["test_limit"])

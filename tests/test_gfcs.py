@@ -142,6 +142,8 @@ def test_problem_encoding(panda):
 @pytest.mark.slow
 @pytest.mark.parametrize("latent", [None, 8], ids=["raw_dE", "autoencoder"])
 def test_self_supervised_run_checkpoints_and_resumes(tmp_path, panda, fabric_params, latent):
+    import dataclasses
+
     from flax import nnx
 
     from fabrax.planners.gfcs.selfsup import SelfSupConfig, load, run
@@ -166,6 +168,11 @@ def test_self_supervised_run_checkpoints_and_resumes(tmp_path, panda, fabric_par
     assert full.contexts.shape[1] == 21 + (latent or 1859)  # [q0, qd0, q_goal] + d_E or its code
     if latent:
         assert all(np.allclose(a, b) for a, b in zip(leaves(full.ae), leaves(resumed.ae), strict=True))
+    # resuming with another setting is refused before anything runs, naming the setting
+    with pytest.raises(ValueError, match=r"other settings: selfsup.hidden \(16 -> 32\)"):
+        run(fabric, params, problems, gcfg, dataclasses.replace(cfg, hidden=32), part, log=quiet)
+    with pytest.raises(ValueError, match="problems"):
+        run(fabric, params, problems[:1], gcfg, cfg, part, log=quiet)
     with pytest.raises(ValueError, match="cannot read GFCS checkpoint"):
         (tmp_path / "bad.msgpack").write_bytes(b"not a checkpoint")
         load(tmp_path / "bad.msgpack", 10, 7, cfg)

@@ -13,6 +13,7 @@ buffer and model.
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 from pathlib import Path
 from typing import Callable
@@ -80,8 +81,9 @@ def new_learner(context_dim: int, target_dim: int, cfg: SelfSupConfig) -> Learne
     return Learner(model, opt, np.zeros((0, context_dim), np.float32), np.zeros((0, target_dim), np.float32), np.zeros(0, np.float32))
 
 
-def save(learner: Learner, path: Path) -> None:
-    """Write the learner atomically (a crash mid-write never leaves a broken checkpoint)."""
+def save(learner: Learner, path: Path, settings: dict | None = None) -> None:
+    """Write the learner atomically (a crash mid-write never leaves a broken checkpoint), with the
+    run's `settings` (see `run`) so that a resume can refuse other ones."""
     data = {
         "model": to_flat(nnx.to_pure_dict(nnx.state(learner.model, nnx.Param))),
         "opt": to_flat(nnx.to_pure_dict(nnx.state(learner.opt, nnx.OptState))),
@@ -92,6 +94,8 @@ def save(learner: Learner, path: Path) -> None:
         "trained": learner.trained,
         "losses": np.asarray(learner.losses, np.float32),
     }
+    if settings is not None:
+        data["settings"] = np.frombuffer(json.dumps(settings, sort_keys=True).encode(), np.uint8)  # msgpack holds arrays, not str
     if learner.ae is not None:
         data["ae"] = to_flat(nnx.to_pure_dict(nnx.state(learner.ae, nnx.Param)))
         data["ae_dims"] = np.asarray([learner.ae.n, learner.ae.latent, learner.ae.width])
@@ -101,11 +105,26 @@ def save(learner: Learner, path: Path) -> None:
     os.replace(tmp, path)
 
 
-def load(path: Path, context_dim: int, target_dim: int, cfg: SelfSupConfig) -> Learner:
+def _flat(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        out.update(_flat(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": v})
+    return out
+
+
+def load(path: Path, context_dim: int, target_dim: int, cfg: SelfSupConfig, expect: dict | None = None) -> Learner:
+    """Read a checkpoint; with `expect` (a run's settings), refuse one written with other settings."""
     try:
         data = serialization.msgpack_restore(Path(path).read_bytes())
     except (OSError, ValueError) as e:
         raise ValueError(f"cannot read GFCS checkpoint {path}: {e}") from e
+    if expect is not None and "settings" in data:
+        old = _flat(json.loads(np.asarray(data["settings"], np.uint8).tobytes().decode()))
+        new = _flat(json.loads(json.dumps(expect, sort_keys=True)))
+        show = lambda v: f"{len(v)} items" if isinstance(v, list) and len(v) > 6 else repr(v)  # noqa: E731
+        differ = [f"{k} ({show(old.get(k))} -> {show(new.get(k))})" for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
+        if differ:
+            raise ValueError(f"GFCS checkpoint {path} was written with other settings: {', '.join(differ)}; use another run directory")
     learner = new_learner(context_dim, target_dim, cfg)
     for obj, key, filt in ((learner.model, "model", nnx.Param), (learner.opt, "opt", nnx.OptState)):
         state = nnx.state(obj, filt)
@@ -186,8 +205,10 @@ def run(
     target_dim = gfcs_cfg.n_commands * robot.dof
     checkpoint = Path(checkpoint)
     context_dim = raw.shape[1] if cfg.latent is None else raw.shape[1] - encoding.n_reference + cfg.latent
+    names = [p.name for p in problems]
+    settings = {"selfsup": dataclasses.asdict(cfg), "gfcs": dataclasses.asdict(gfcs_cfg), "encoding": dataclasses.asdict(encoding), "problems": names}
     if checkpoint.exists():
-        learner = load(checkpoint, context_dim, target_dim, cfg)
+        learner = load(checkpoint, context_dim, target_dim, cfg, expect=settings)
     else:
         learner = new_learner(context_dim, target_dim, cfg)
         if cfg.latent is not None:  # fitted once, on the training scenes, before any solve
@@ -219,6 +240,6 @@ def run(
         if learner.solved % cfg.retrain_every == 0 and len(learner.targets):
             train(learner, k_train, cfg)
             log(f"retrained on {len(learner.targets)} buffered solutions, loss {np.mean(learner.losses[-10:]):.3f}")
-        save(learner, checkpoint)
+        save(learner, checkpoint, settings)
         log(f"solve {learner.solved}/{total} {problems[i % len(problems)].name}: best cost {r.best_cost:.2f}, {int(good.sum())} kept")
     return learner
