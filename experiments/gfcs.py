@@ -96,12 +96,12 @@ def saved_rows(cfg: dict, path: Path) -> list[dict]:
     """The rows of a saved run (its directory or results.json), refused when it was solved with other settings."""
     import json
 
+    from fabrax import config
+
     path = path / "results.json" if path.is_dir() else path
     if not path.is_file():
         raise SystemExit(f"reactive.results: no results.json at {path}")
     saved = json.loads(path.read_text())
-    from fabrax import config
-
     old = saved.get("meta", {}).get("config", {})
     as_dict = lambda f: config.load("fabric", f) if isinstance(f, str) else f  # noqa: E731
     differ = [k for k in SAME if k in old and (as_dict(old[k]) != as_dict(cfg[k]) if k == "fabric" else old[k] != cfg[k])]

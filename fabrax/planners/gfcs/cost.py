@@ -20,7 +20,7 @@ import numpy as np
 from flax import struct
 
 from fabrax.fabrics.fabric import Params
-from fabrax.robot import frame_pose
+from fabrax.robot import points
 from fabrax.rollout.rollout import rollout_population
 from fabrax.rollout.trajectory import Trajectory
 from fabrax.scene import COMMON_CAPACITY, Scene
@@ -118,7 +118,8 @@ def population_cost(
 def ee_length(fabric, qs: jax.Array) -> jax.Array:
     """Path length (m) of the fabric's goal frame along configurations qs (..., T, dof); rows past a
     trajectory's end repeat its last state and add nothing."""
-    pos = jax.vmap(lambda q: frame_pose(fabric.robot, q, fabric.goal_frame).translation())(qs.reshape(-1, qs.shape[-1]))
+    frame, local = fabric.robot.frame_point(fabric.goal_frame)  # the frame's origin: no rotation to convert
+    pos = jax.vmap(lambda q: points(fabric.robot, q, frame[None], local[None])[0])(qs.reshape(-1, qs.shape[-1]))
     pos = pos.reshape(*qs.shape[:-1], 3)
     return jnp.sum(jnp.linalg.norm(jnp.diff(pos, axis=-2), axis=-1), axis=-1)
 

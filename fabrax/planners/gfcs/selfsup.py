@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-from flax import nnx, serialization
+from flax import nnx, serialization, traverse_util
 
 from fabrax.planners.gfcs.autoencoder import DistanceAE
 from fabrax.planners.gfcs.autoencoder import fit as fit_autoencoder
@@ -105,13 +105,6 @@ def save(learner: Learner, path: Path, settings: dict | None = None) -> None:
     os.replace(tmp, path)
 
 
-def _flat(d: dict, prefix: str = "") -> dict:
-    out = {}
-    for k, v in d.items():
-        out.update(_flat(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": v})
-    return out
-
-
 def load(path: Path, context_dim: int, target_dim: int, cfg: SelfSupConfig, expect: dict | None = None) -> Learner:
     """Read a checkpoint; with `expect` (a run's settings), refuse one written with other settings."""
     try:
@@ -119,8 +112,8 @@ def load(path: Path, context_dim: int, target_dim: int, cfg: SelfSupConfig, expe
     except (OSError, ValueError) as e:
         raise ValueError(f"cannot read GFCS checkpoint {path}: {e}") from e
     if expect is not None and "settings" in data:
-        old = _flat(json.loads(np.asarray(data["settings"], np.uint8).tobytes().decode()))
-        new = _flat(json.loads(json.dumps(expect, sort_keys=True)))
+        old = traverse_util.flatten_dict(json.loads(np.asarray(data["settings"], np.uint8).tobytes().decode()), sep=".")
+        new = traverse_util.flatten_dict(json.loads(json.dumps(expect, sort_keys=True)), sep=".")
         show = lambda v: f"{len(v)} items" if isinstance(v, list) and len(v) > 6 else repr(v)  # noqa: E731
         differ = [f"{k} ({show(old.get(k))} -> {show(new.get(k))})" for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
         if differ:
