@@ -60,16 +60,19 @@ class ArmFabric(Fabric):
             return self._set(params, "ee", target_pos=at_goal.translation(), target_quat=at_goal.rotation().wxyz, weight=1.0)
         return self._set(params, "ee", weight=0.0)
 
-    def with_pose_goal(self, params: Params, position: jax.Array, quat_wxyz: jax.Array, posture: jax.Array | None = None) -> Params:
-        """Aim the fabric at an end-effector pose of `goal_frame`, holding `posture` in the null space;
-        without one, the robot's default posture at `default_posture_weight` (a posture that does not
-        match the goal pulls against it, so it is held more loosely)."""
+    def with_pose_goal(
+        self, params: Params, position: jax.Array, quat_wxyz: jax.Array, posture: jax.Array | None = None, posture_weight=1.0
+    ) -> Params:
+        """Aim the fabric at an end-effector pose of `goal_frame`, holding `posture` in the null space
+        at `posture_weight` (0 switches the posture off; traceable); without one, the robot's default
+        posture at `default_posture_weight` (a posture that does not match the goal pulls against it,
+        so it is held more loosely)."""
         if not self._has("ee"):
             raise ValueError("this fabric has no 'ee' end-effector attractor term")
         params = self._set(params, "ee", target_pos=position, target_quat=quat_wxyz, weight=1.0)
         params = self._set(params, "goal", weight=0.0)
         if posture is not None:
-            return self._set(params, "posture", target=posture, weight=1.0)
+            return self._set(params, "posture", target=posture, weight=posture_weight)
         if self.posture:
             params = self._set(params, "posture", target=jnp.asarray(self.posture), weight=self.default_posture_weight)
         return params

@@ -117,3 +117,40 @@ def flying_cuboids(rng: np.random.Generator, n: int = (6, 10), r_min: float = 0.
             continue
         obs.append({"type": "cuboid", "center": center.tolist(), "quat_wxyz": (q / np.linalg.norm(q)).tolist(), "size": size.tolist()})
     return {"obstacles": obs}
+
+
+def cuboid_forest(rng: np.random.Generator, spacing: float = 0.45, extent: float = 1.1, keep_out: float = 0.35, jitter: float = 0.08) -> dict:
+    """Thesis §3.4.1.2 'cuboid forest': vertically stretched cuboids on a jittered grid, each turned
+    about z; cuboids whose footprint comes within `keep_out` of the base's vertical axis are dropped."""
+    ticks = np.arange(-extent, extent + 1e-9, spacing)
+    obs = []
+    for x in ticks:
+        for y in ticks:
+            c = np.array([x, y]) + rng.uniform(-jitter, jitter, 2)
+            size = np.array([*rng.uniform(0.05, 0.15, 2), rng.uniform(0.3, 1.3)])
+            if np.linalg.norm(c) - 0.5 * np.linalg.norm(size[:2]) < keep_out:
+                continue
+            yaw = rng.uniform(-np.pi, np.pi)
+            obs.append(
+                {
+                    "type": "cuboid",
+                    "center": [float(c[0]), float(c[1]), float(size[2] / 2)],
+                    "quat_wxyz": [float(np.cos(yaw / 2)), 0.0, 0.0, float(np.sin(yaw / 2))],
+                    "size": size.tolist(),
+                }
+            )
+    return {"obstacles": obs}
+
+
+def surrounding_shelves(rng: np.random.Generator, distance=(0.7, 0.9), spacing=(0.2, 0.4), top: float = 1.3) -> dict:
+    """Thesis §3.4.1.2 'shelves': four tall shelves around the robot, each facing it, with levels
+    `spacing` m apart (uniform per level)."""
+    obs = []
+    for yaw in np.arange(4) * np.pi / 2 + rng.uniform(-0.2, 0.2):
+        heights, h = [], rng.uniform(0.0, spacing[0])
+        while h < top:
+            heights.append(float(h))
+            h += rng.uniform(*spacing)
+        r = rng.uniform(*distance)
+        obs += shelf(center=(r * np.cos(yaw), r * np.sin(yaw), 0.0), width=0.9, depth=0.35, heights=heights, yaw=float(yaw))["obstacles"]
+    return {"obstacles": obs}

@@ -140,3 +140,16 @@ def keypoints(robot, q):
     """World positions (8, 3) of the end effector's bounding-box corners (thesis §3.4.2)."""
     frame = jnp.full((8,), robot.keypoint_frame, jnp.int32)
     return points(robot, q, frame, robot.keypoint_local)
+
+
+def keypoints_at_pose(robot, name: str, position, quat_wxyz):
+    """The keypoints (8, 3) of an end effector whose named frame `name` is at the pose (position,
+    quaternion wxyz), without a joint configuration (e.g. a pose goal as keypoints, thesis §3.4.2).
+    The frame must ride on the keypoints' joint frame."""
+    i = robot.frame_index(name)
+    if int(robot.frame_parent[i]) != robot.keypoint_frame:
+        raise ValueError(f"frame '{name}' is not on the joint frame that carries robot '{robot.name}''s keypoints")
+    r_goal = jaxlie.SO3(jnp.asarray(quat_wxyz) / jnp.linalg.norm(quat_wxyz)).as_matrix()
+    r = r_goal @ robot.frame_offset_r[i].T
+    t = jnp.asarray(position) - r @ robot.frame_offset_t[i]
+    return robot.keypoint_local @ r.T + t

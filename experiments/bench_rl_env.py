@@ -1,0 +1,136 @@
+"""RL guide environment throughput: env steps per second for batches of envs, compile time, and
+where a step's time goes (fabric substeps, the exact checker on every substep, observations).
+
+Each timed call is a `lax.scan` over `--steps` policy steps of the vmapped env with random
+actions (no auto-reset), after a warm-up call. The scene pool is generated (cuboid forests,
+surrounding shelves, flying cuboids), so it needs no data. Writes JSON and a markdown table.
+
+    python experiments/bench_rl_env.py --out bench_out/rl_env
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+
+import fabrax  # noqa: F401  (XLA flags before jax)
+from fabrax.problems.clearance import state_clearances
+from fabrax.rl import make_env
+from fabrax.rollout import integrate
+
+
+def timed(fn, *args, repeats: int):
+    t = time.perf_counter()
+    jax.block_until_ready(fn(*args))
+    compile_s = time.perf_counter() - t
+    best = float("inf")
+    for _ in range(repeats):
+        t = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        best = min(best, time.perf_counter() - t)
+    return compile_s, best
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="bench_out/rl_env")
+    ap.add_argument("--batches", default="64,256,1024")
+    ap.add_argument("--steps", type=int, default=4, help="policy steps per timed call")
+    ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--scenes", type=int, default=8, help="generated scenes of each kind in the pool")
+    ap.add_argument("--substeps", type=int, default=30)
+    args = ap.parse_args()
+
+    n = args.scenes
+    env = make_env({"substeps": args.substeps, "scenes": {"generated": {"cuboid_forest": n, "shelves": n, "flying_cuboids": n}}})
+    cfg = env.cfg
+    rows = []
+    for b in [int(x) for x in args.batches.split(",")]:
+        keys = jax.random.split(jax.random.PRNGKey(0), b)
+        state = jax.jit(jax.vmap(env.reset))(keys)
+
+        @jax.jit
+        def rollout(state, key):
+            def body(s, k):
+                a = jax.random.uniform(k, (b, env.action_size), minval=-1.0, maxval=1.0)
+                s = jax.vmap(env.step)(s, a)
+                return s, s.reward
+
+            return jax.lax.scan(body, state, jax.random.split(key, args.steps))[1]
+
+        ep = state.pipeline_state
+        a0 = jnp.zeros((b, env.action_size))
+        params, _ = jax.vmap(env.targets, in_axes=(0, 0, None))(ep, a0, jnp.ones((), jnp.int32))
+
+        @jax.jit
+        def substeps(params, ep):  # the fabric alone: `substeps` integrations per env
+            def one(p, e):
+                def body(c, _):
+                    q, qd, _, _ = integrate(env.fabric, p, e.scene, c[0], c[1], cfg.fabric_dt, cfg.integrator)
+                    return (q, qd), q
+
+                return jax.lax.scan(body, (e.fabric_q, e.fabric_qd), None, length=cfg.substeps)[1]
+
+            return jax.vmap(one)(params, ep)
+
+        qs = substeps(params, ep)
+        checker = jax.jit(jax.vmap(lambda s, q: state_clearances(env.robot, s, q)))
+        observe = jax.jit(jax.vmap(env._observe))
+        compile_s, step_s = timed(rollout, state, jax.random.PRNGKey(1), repeats=args.repeats)
+        _, fabric_s = timed(substeps, params, ep, repeats=args.repeats)
+        _, check_s = timed(checker, ep.scene, qs, repeats=args.repeats)
+        _, obs_s = timed(observe, ep, state.obs["bps"], repeats=args.repeats)
+        per_step = step_s / args.steps
+        rows.append(
+            {
+                "envs": b,
+                "env_steps_per_s": b / per_step,
+                "ms_per_step": 1e3 * per_step,
+                "compile_s": compile_s - step_s,
+                "fabric_ms": 1e3 * fabric_s,
+                "checker_ms": 1e3 * check_s,
+                "observe_ms": 1e3 * obs_s,
+            }
+        )
+        print(json.dumps(rows[-1]), flush=True)
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    meta = {
+        "backend": cfg.backend,
+        "substeps": cfg.substeps,
+        "fabric_dt": cfg.fabric_dt,
+        "pool": env.pool.size,
+        "capacity": env.pool.scene.capacity,
+        "spheres": env.robot.n_spheres,
+        "cpus": os.cpu_count(),
+        "machine": platform.processor() or platform.machine(),
+        "jax": jax.__version__,
+        "devices": [str(d) for d in jax.devices()],
+    }
+    (out / "rl_env.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))
+    lines = [
+        f"backend {cfg.backend}, {cfg.substeps} fabric substeps per policy step, pool of {env.pool.size} generated scenes "
+        f"(capacity {env.pool.scene.capacity}), {meta['cpus']} CPUs",
+        "",
+        "| envs | env steps/s | ms per step | compile s | fabric substeps ms | checker ms | observations ms |",
+        "|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['envs']} | {r['env_steps_per_s']:,.0f} | {r['ms_per_step']:.1f} | {r['compile_s']:.1f} | "
+            f"{r['fabric_ms']:.1f} | {r['checker_ms']:.1f} | {r['observe_ms']:.1f} |"
+        )
+    (out / "rl_env.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,214 @@
+"""The fabric-guided arm environment (thesis §3.4) in brax's `Env` API.
+
+The policy acts at 1 / (substeps fabric_dt) Hz (2 Hz by default) and the fabric is its action
+layer at 1 / fabric_dt Hz (60 Hz). An action (Table 3.3) is
+    [relative hand translation (3), relative hand rotation, axis-angle (3), joint target (n), switch (1)],
+each in [-1, 1]: the translation and rotation (scaled by `ee_translation`, `ee_rotation`, in the
+world frame) applied to the current pose of the fabric's goal frame give the end-effector
+attractor's target; the joint target, mapped onto the joint limits, aims the posture attractor
+that shapes the arm in the null space. Once the switch reads >= `switch_threshold` (stage 2 only)
+it latches: the hand target becomes the goal pose and the posture attractor is off for the rest of
+the episode.
+
+Rewards (Table 3.5): `sparse_reward` once the mean keypoint distance to the goal is below
+`success_distance` (stage 2; the episode ends there), `intrinsic_weight` times the goal-weighted
+count reward of eqs. 3.17-3.18 (both stages); a collision, judged by the exact checker on every
+fabric step, ends the episode with `-collision_penalty`. The curriculum stage is
+`state.info["stage"]` (1 or 2): training advances it by writing that array, without recompiling.
+Episodes end on success or collision; the time limit (`EnvConfig.episode_steps`) is brax's
+`EpisodeWrapper`'s, so that PPO bootstraps it as a truncation.
+
+Backends: "kinematic" (the arm is the fabric's state). Everything an episode carries lives in
+`state.pipeline_state` (an `Episode`), so brax's auto-reset restores it whole.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+from brax.envs.base import Env, State
+from flax import struct
+
+from fabrax.config import load_fabric, load_robot
+from fabrax.fabrics import ArmFabric, Params
+from fabrax.problems.clearance import state_clearances
+from fabrax.problems.mbm import load_mbm
+from fabrax.rl.config import EnvConfig, env_config
+from fabrax.rl.observations import bps_vectors, cell_centres, cell_index, grid_points, intrinsic_reward, keypoint_distance, point_distances
+from fabrax.rl.scenes import ScenePool, build_pool, sample_episode
+from fabrax.robot.kinematics import frame_pose, keypoints, points, sphere_centers
+from fabrax.rollout.rollout import integrate
+from fabrax.scene import Scene
+
+METRICS = ("success", "collision", "keypoint_distance", "unique_cells", "r_sparse", "r_intrinsic", "switch")
+
+
+@struct.dataclass
+class Episode:
+    q: jax.Array  # robot joint positions (the fabric's in the kinematic backend)
+    qd: jax.Array
+    fabric_q: jax.Array  # q_e, qd_e, qdd_e: the fabric's state
+    fabric_qd: jax.Array
+    fabric_qdd: jax.Array
+    scene: Scene
+    scene_index: jax.Array
+    mode: jax.Array  # start/goal mode of Table 3.1 (0-3)
+    goal_q: jax.Array  # a configuration whose hand pose is the goal
+    goal_pos: jax.Array
+    goal_quat: jax.Array
+    goal_keypoints: jax.Array  # (8, 3)
+    counts: jax.Array  # (cells^3,) uint8 visits of the exploration map's cells
+    switch: jax.Array  # bool, latched
+    t: jax.Array  # policy steps taken
+
+
+class FabricGuideEnv(Env):
+    """brax `Env`: reset(rng) -> State, step(state, action) -> State; pure, jit- and vmap-able."""
+
+    def __init__(self, fabric: ArmFabric, params: Params, pool: ScenePool, cfg: EnvConfig):
+        if cfg.backend != "kinematic":
+            raise ValueError(f"env.backend '{cfg.backend}' is not available yet (backends built: kinematic)")
+        self.fabric, self.params, self.pool, self.cfg = fabric, params, pool, cfg
+        self.robot = fabric.robot
+        self._hand = self.robot.frame_point(fabric.goal_frame)
+        self._centres = cell_centres(cfg.map_cells, *cfg.bounds)
+        self._modes = jnp.asarray(cfg.scenes.modes, jnp.float32)
+
+    # -- brax Env properties --------------------------------------------------------------
+    @property
+    def action_size(self) -> int:
+        return 6 + self.robot.dof + 1
+
+    @property
+    def observation_size(self) -> dict[str, tuple[int, ...]]:
+        c, m, n = self.cfg.bps_cells, self.cfg.map_cells, self.robot.dof
+        return {
+            "goal_keypoints": (24,),
+            "q": (n,),
+            "hand_keypoints": (24,),
+            "fabric_q": (n,),
+            "fabric_qd": (n,),
+            "fabric_qdd": (n,),
+            "bps": (c, c, c, 3),
+            "dynamic_bps": (self.robot.n_spheres,),
+            "exploration": (m, m, m, 1),
+            "switch": (1,),
+        }
+
+    @property
+    def backend(self) -> str:
+        return self.cfg.backend
+
+    # -- episode --------------------------------------------------------------------------
+    def reset(self, rng: jax.Array) -> State:
+        i, start, goal_q, mode = sample_episode(self.pool, self._modes, rng)
+        goal = frame_pose(self.robot, goal_q, self.fabric.goal_frame)
+        zero = jnp.zeros_like(start)
+        ep = Episode(
+            q=start,
+            qd=zero,
+            fabric_q=start,
+            fabric_qd=zero,
+            fabric_qdd=zero,
+            scene=jax.tree.map(lambda a: a[i], self.pool.scene),
+            scene_index=i,
+            mode=mode,
+            goal_q=goal_q,
+            goal_pos=goal.translation(),
+            goal_quat=goal.rotation().wxyz,
+            goal_keypoints=keypoints(self.robot, goal_q),
+            counts=jnp.zeros(self.cfg.map_cells**3, jnp.uint8),
+            switch=jnp.zeros((), bool),
+            t=jnp.zeros((), jnp.int32),
+        )
+        zeros = {k: jnp.zeros(()) for k in METRICS}
+        obs = self._observe(ep, self.pool.bps[i])
+        zeros["keypoint_distance"] = keypoint_distance(obs["hand_keypoints"].reshape(8, 3), ep.goal_keypoints)
+        return State(ep, obs, jnp.zeros(()), jnp.zeros(()), zeros, {"stage": jnp.ones((), jnp.int32)})
+
+    def targets(self, ep: Episode, action: jax.Array, stage: jax.Array):
+        """The fabric parameters an action commands (see the module docstring) and the latched switch."""
+        cfg, robot = self.cfg, self.robot
+        a = jnp.clip(action, -1.0, 1.0)
+        hand = frame_pose(robot, ep.fabric_q, self.fabric.goal_frame)
+        pos = hand.translation() + cfg.ee_translation * a[:3]
+        rot = jaxlie.SO3.exp(cfg.ee_rotation * a[3:6]) @ hand.rotation()
+        posture = 0.5 * (robot.lower + robot.upper) + 0.5 * (robot.upper - robot.lower) * a[6 : 6 + robot.dof]
+        switch = ep.switch | ((a[-1] >= cfg.switch_threshold) & (stage >= 2))
+        pos = jnp.where(switch, ep.goal_pos, pos)
+        quat = jnp.where(switch, ep.goal_quat, rot.wxyz)
+        params = self.fabric.with_pose_goal(self.params, pos, quat, posture=posture, posture_weight=jnp.where(switch, 0.0, 1.0))
+        return params, switch
+
+    def step(self, state: State, action: jax.Array) -> State:
+        cfg, robot, ep = self.cfg, self.robot, state.pipeline_state
+        stage = state.info["stage"]
+        params, switch = self.targets(ep, action, stage)
+
+        def substep(carry, _):
+            q, qd, _ = carry
+            q, qd, qdd, _ = integrate(self.fabric, params, ep.scene, q, qd, cfg.fabric_dt, cfg.integrator)
+            return (q, qd, qdd), q
+
+        (q, qd, qdd), qs = jax.lax.scan(substep, (ep.fabric_q, ep.fabric_qd, ep.fabric_qdd), None, length=cfg.substeps)
+        env_clear, self_clear, _ = state_clearances(robot, ep.scene, qs)  # the exact checker on every fabric step
+        collision = jnp.any(env_clear < 0.0) | jnp.any(self_clear < 0.0)
+        hand = jax.vmap(lambda x: points(robot, x, self._hand[0][None], self._hand[1][None])[0])(qs)
+        cells, inside = cell_index(hand, cfg.map_cells, *cfg.bounds)
+        visited = jnp.zeros(cfg.map_cells**3, bool).at[cells].max(inside)
+        counts = jnp.where(visited, jnp.minimum(ep.counts, 254) + 1, ep.counts).astype(jnp.uint8)
+        r_int = intrinsic_reward(counts, visited, self._centres, ep.goal_pos)
+
+        ep = ep.replace(q=q, qd=qd, fabric_q=q, fabric_qd=qd, fabric_qdd=qdd, counts=counts, switch=switch, t=ep.t + 1)
+        obs = self._observe(ep, state.obs["bps"])
+        dist = keypoint_distance(obs["hand_keypoints"].reshape(8, 3), ep.goal_keypoints)
+        success = (dist < cfg.success_distance) & (stage >= 2)
+        r_sparse = jnp.where(success, cfg.sparse_reward, 0.0)
+        reward = r_sparse + cfg.intrinsic_weight * r_int - jnp.where(collision, cfg.collision_penalty, 0.0)
+        done = success | collision
+        metrics = {
+            "success": success.astype(jnp.float32),
+            "collision": collision.astype(jnp.float32),
+            "keypoint_distance": dist,
+            "unique_cells": jnp.sum(counts > 0).astype(jnp.float32),
+            "r_sparse": r_sparse,
+            "r_intrinsic": r_int,
+            "switch": switch.astype(jnp.float32),
+        }
+        return state.replace(pipeline_state=ep, obs=obs, reward=reward, done=done.astype(jnp.float32), metrics=metrics)
+
+    def _observe(self, ep: Episode, bps: jax.Array) -> dict[str, jax.Array]:
+        """Table 3.2 from the episode state; the static BPS comes from the pool (computed once per scene)."""
+        cfg, robot = self.cfg, self.robot
+        m = cfg.map_cells
+        return {
+            "goal_keypoints": ep.goal_keypoints.reshape(-1),
+            "q": ep.q,
+            "hand_keypoints": keypoints(robot, ep.q).reshape(-1),
+            "fabric_q": ep.fabric_q,
+            "fabric_qd": ep.fabric_qd,
+            "fabric_qdd": ep.fabric_qdd,
+            "bps": bps,
+            "dynamic_bps": point_distances(ep.scene, sphere_centers(robot, ep.q), cfg.bps_clip),
+            "exploration": (ep.counts > 0).astype(jnp.float32).reshape(m, m, m, 1),
+            "switch": ep.switch.astype(jnp.float32)[None],
+        }
+
+
+def scene_bps(env: FabricGuideEnv, scene: Scene) -> jax.Array:
+    """The static basis point vectors of any scene on this env's grid (e.g. a held-out evaluation scene)."""
+    return bps_vectors(scene, grid_points(env.cfg.bps_cells, *env.cfg.bounds), env.cfg.bps_clip)
+
+
+def make_env(cfg: EnvConfig | dict | None = None, robot: str = "panda", fabric: str | dict = "panda", data_dir=None) -> FabricGuideEnv:
+    """The environment from configs: robot and fabric by config name (configs/robot, configs/fabric),
+    `cfg` an `EnvConfig` or its mapping. MBM train problems (1-50) of `cfg.scenes.mbm_classes` are
+    read from `data_dir` (default $FABRAX_DATA)."""
+    cfg = cfg if isinstance(cfg, EnvConfig) else env_config(cfg)
+    if cfg.backend != "kinematic":
+        raise ValueError(f"env.backend '{cfg.backend}' is not available yet (backends built: kinematic)")
+    rob = load_robot(robot)
+    arm, params = load_fabric(rob, fabric)
+    problems = load_mbm(rob, data_dir, cfg.scenes.mbm_classes, split="train", limit=cfg.scenes.mbm_limit) if cfg.scenes.mbm_classes else []
+    return FabricGuideEnv(arm, params, build_pool(rob, cfg, problems), cfg)
