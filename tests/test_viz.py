@@ -82,6 +82,22 @@ def test_live_mode_follows_the_dragged_goal(viewer):
     assert np.linalg.norm(hand - target) < 0.05
 
 
+def test_rl_view_plays_an_episode_of_the_environment(viewer):
+    """The switch policy is the pure fabric aimed at the goal: the episode ends in success or runs out."""
+    from fabrax.viz.rl_view import rl_view
+
+    cfg = {"substeps": 5, "episode_s": 2.5, "scenes": {"generated": {"flying_cuboids": 1}, "configs_per_scene": 4}}
+    info = rl_view(viewer, policy="switch", env_cfg=cfg)
+    assert info["scene"] == "flying_cuboids/0000" and 1 <= info["steps"] <= 30
+    assert info["fabric_steps"] == 1 + 5 * info["steps"]
+    assert not info["collision"]
+    names = {getattr(n, "name", "") for n in viewer.nodes}
+    assert {"/goal_pose", "/goal_keypoints", "/ee_target", "/exploration", "/bps", "/path"} <= names
+    target = next(n for n in viewer.nodes if getattr(n, "name", "") == "/ee_target")
+    goal = next(n for n in viewer.nodes if getattr(n, "name", "") == "/goal_pose")
+    np.testing.assert_allclose(target.position, goal.position, atol=1e-5)  # switch on: the target is the goal
+
+
 def test_results_browser_shows_every_method(viewer, tmp_path, shared_data):
     from fabrax.bench import cli
     from fabrax.viz.app import load_results, results_browser

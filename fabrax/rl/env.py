@@ -141,17 +141,24 @@ class FabricGuideEnv(Env):
         params = self.fabric.with_pose_goal(self.params, pos, quat, posture=posture, posture_weight=jnp.where(switch, 0.0, 1.0))
         return params, switch
 
-    def step(self, state: State, action: jax.Array) -> State:
-        cfg, robot, ep = self.cfg, self.robot, state.pipeline_state
-        stage = state.info["stage"]
-        params, switch = self.targets(ep, action, stage)
+    def substeps(self, ep: Episode, params: Params):
+        """The fabric's `substeps` steps under `params` from the episode's fabric state: the final
+        (q, qd, qdd) and every substep's q (substeps, n)."""
+        cfg = self.cfg
 
         def substep(carry, _):
             q, qd, _ = carry
             q, qd, qdd, _ = integrate(self.fabric, params, ep.scene, q, qd, cfg.fabric_dt, cfg.integrator)
             return (q, qd, qdd), q
 
-        (q, qd, qdd), qs = jax.lax.scan(substep, (ep.fabric_q, ep.fabric_qd, ep.fabric_qdd), None, length=cfg.substeps)
+        return jax.lax.scan(substep, (ep.fabric_q, ep.fabric_qd, ep.fabric_qdd), None, length=cfg.substeps)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        cfg, robot, ep = self.cfg, self.robot, state.pipeline_state
+        stage = state.info["stage"]
+        params, switch = self.targets(ep, action, stage)
+
+        (q, qd, qdd), qs = self.substeps(ep, params)
         env_clear, self_clear, _ = state_clearances(robot, ep.scene, qs)  # the exact checker on every fabric step
         collision = jnp.any(env_clear < 0.0) | jnp.any(self_clear < 0.0)
         hand = jax.vmap(lambda x: points(robot, x, self._hand[0][None], self._hand[1][None])[0])(qs)

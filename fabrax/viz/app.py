@@ -29,6 +29,7 @@ class Viewer:
     def __init__(self, robot_name: str = "panda", host: str = "127.0.0.1", port: int = 8080, frame: str | None = None):
         import viser
 
+        self.robot_name = robot_name
         self.robot_cfg = config.load("robot", robot_name)
         self.robot = config.load_robot(robot_name)
         self.frame = frame or ("panda_hand" if "panda_hand" in self.robot.frame_names else self.robot.frame_names[-1])
@@ -92,8 +93,9 @@ class Viewer:
             p = np.asarray(frame_pose(self.robot, jnp.asarray(c, jnp.float32), self.frame).translation())
             self.nodes.append(self.server.scene.add_icosphere(f"/commands/ee_{i}", radius=0.02, color=COMMAND, position=tuple(p)))
 
-    def player(self, arms: list[tuple[RobotView, np.ndarray]], dt: float) -> None:
-        """Time slider and play/pause for one or more arms, each with its own path (T_i, dof)."""
+    def player(self, arms: list[tuple[RobotView, np.ndarray]], dt: float, on_frame=None) -> None:
+        """Time slider and play/pause for one or more arms, each with its own path (T_i, dof);
+        `on_frame(k)` updates anything else drawn at step k."""
         steps = max(len(q) for _, q in arms)
         slider = self.server.gui.add_slider("time (s)", min=0.0, max=round((steps - 1) * dt, 2), step=dt, initial_value=0.0)
         play = self.server.gui.add_checkbox("play", initial_value=True)
@@ -103,6 +105,8 @@ class Viewer:
             k = int(round(slider.value / dt))
             for view, q in arms:
                 view.update(q[min(k, len(q) - 1)])
+            if on_frame is not None:
+                on_frame(k)
 
         slider.on_update(pose)
         pose()

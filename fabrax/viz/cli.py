@@ -4,6 +4,7 @@
     fabrax view live                         # drag the goal gizmo and the obstacles; the fabric reacts in real time
     fabrax view results bench_out/gf bench_out/gfcs   # step through benchmark runs, methods side by side
     fabrax view skill outputs/skills/<time>          # a motion skill's geodesics, plain and reshaped by an obstacle
+    fabrax view rl --policy switch                   # the RL guide's environment: one episode (random, switch, hold)
 
 Then open http://127.0.0.1:8080 (--port, --host to change; --seconds N serves N seconds and exits).
 """
@@ -18,12 +19,14 @@ from pathlib import Path
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="fabrax view", description=__doc__.splitlines()[0])
-    parser.add_argument("mode", choices=["demo", "live", "results", "skill"])
+    parser.add_argument("mode", choices=["demo", "live", "results", "skill", "rl"])
     parser.add_argument("runs", nargs="*", help="results: run directories holding results.json and paths.npz; skill: one skills run")
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--port", type=int, default=8080)
     parser.add_argument("--robot", default="panda", help="robot config in configs/robot (results: the run's robot by default)")
     parser.add_argument("--fabric", default="panda", help="fabric config in configs/fabric")
+    parser.add_argument("--policy", default="random", choices=["random", "switch", "hold"], help="rl: the actions")
+    parser.add_argument("--seed", type=int, default=0, help="rl: the episode's seed")
     parser.add_argument("--seconds", type=float, default=None, help="serve this long, then exit (default: until Ctrl-C)")
     args = parser.parse_args(argv)
     if args.mode in ("results", "skill") and not args.runs:
@@ -48,6 +51,10 @@ def main(argv: list[str] | None = None) -> int:
         app.live(viewer, args.fabric)
     elif args.mode == "skill":
         print(app.skill_view(viewer, args.runs[0]))
+    elif args.mode == "rl":
+        from fabrax.viz.rl_view import rl_view
+
+        print(rl_view(viewer, args.fabric, args.policy, args.seed))
     else:
         app.results_browser(viewer, args.runs)
     print(f"fabrax view {args.mode}: http://{args.host}:{viewer.port}", flush=True)

@@ -1,0 +1,112 @@
+"""`fabrax view rl`: the RL guide's environment rolling out one episode, played back.
+
+Shown: the scene, the goal pose and its keypoints, the end-effector attractor's target of every
+policy step, the exploration map's visited cells, and on a toggle the static basis point vectors
+(every second grid point along each axis). Actions come from `policy`:
+random (uniform in [-1, 1], curriculum stage 1), switch (stage 2 with the fabric switch on from the
+first step: the pure fabric aimed at the goal) or hold (zero actions: the hand holds its pose).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from fabrax.rl import make_env
+from fabrax.rl.observations import grid_points
+from fabrax.scene import to_dict
+from fabrax.viz.app import GOAL, PATHS, Viewer
+from fabrax.viz.scene_view import draw_scene
+
+POLICIES = ("random", "switch", "hold")
+TARGET = (230, 200, 60)
+CELLS = (90, 140, 230)
+BPS = (160, 160, 160)
+
+
+def episode(env, policy: str, key: jax.Array):
+    """One episode of `policy` from a reset: substep configurations (T, S, n), hand targets (T, 7),
+    visit counts (T, cells^3), metrics (T,) per policy step, alive (T,) (False after the episode ended)."""
+    stage = jnp.asarray(2 if policy == "switch" else 1, jnp.int32)
+    k_reset, k_act = jax.random.split(key)
+    state = env.reset(k_reset)
+    state = state.replace(info={**state.info, "stage": stage})
+
+    def body(carry, k):
+        s, alive = carry
+        if policy == "random":
+            a = jax.random.uniform(k, (env.action_size,), minval=-1.0, maxval=1.0)
+        else:
+            a = jnp.zeros(env.action_size).at[-1].set(1.0 if policy == "switch" else -1.0)
+        ep = s.pipeline_state
+        params, _ = env.targets(ep, a, stage)
+        _, qs = env.substeps(ep, params)
+        nxt = env.step(s, a)
+        qs = jnp.where(alive, qs, ep.q)
+        nxt = jax.tree.map(lambda x, y: jnp.where(alive, x, y), nxt, s)
+        target = jnp.concatenate([params["ee"]["target_pos"], params["ee"]["target_quat"]])
+        out = (qs, target, nxt.pipeline_state.counts, nxt.metrics, alive)
+        return (nxt, alive & (nxt.done == 0.0)), out
+
+    keys = jax.random.split(k_act, env.cfg.episode_steps)
+    _, out = jax.lax.scan(body, (state, jnp.ones((), bool)), keys)
+    return state, out
+
+
+def rl_view(viewer: Viewer, fabric_name: str = "panda", policy: str = "random", seed: int = 0, env_cfg: dict | None = None) -> dict:
+    """Roll one episode out and play it back; returns what happened (steps, success, collision)."""
+    if policy not in POLICIES:
+        raise ValueError(f"policy must be one of {POLICIES}, got '{policy}'")
+    cfg = env_cfg or {"scenes": {"generated": {"cuboid_forest": 1, "shelves": 1, "flying_cuboids": 1}, "configs_per_scene": 4}}
+    env = make_env(cfg, robot=viewer.robot_name, fabric=fabric_name)
+    start, (qs, targets, counts, metrics, alive) = jax.jit(lambda k: episode(env, policy, k))(jax.random.PRNGKey(seed))
+    ep = start.pipeline_state
+    steps = int(np.asarray(alive).sum())
+    q = np.concatenate([np.asarray(ep.q)[None], np.asarray(qs[:steps]).reshape(-1, env.robot.dof)])
+    server = viewer.server
+
+    viewer.nodes += draw_scene(server, to_dict(ep.scene), "/scene")
+    goal = dict(position=tuple(np.asarray(ep.goal_pos)), wxyz=tuple(np.asarray(ep.goal_quat)))
+    viewer.nodes.append(server.scene.add_frame("/goal_pose", axes_length=0.1, axes_radius=0.005, **goal))
+    kp = np.asarray(ep.goal_keypoints, np.float32)
+    viewer.nodes.append(server.scene.add_point_cloud("/goal_keypoints", points=kp, colors=GOAL, point_size=0.015))
+    target = server.scene.add_frame("/ee_target", axes_length=0.08, axes_radius=0.004)
+    centres = np.asarray(env._centres, np.float32)
+    cells = server.scene.add_point_cloud("/exploration", points=centres[:1], colors=CELLS, point_size=0.02)
+    grid = np.asarray(start.obs["bps"])[::2, ::2, ::2]
+    base = np.asarray(grid_points(env.cfg.bps_cells, *env.cfg.bounds))[::2, ::2, ::2].reshape(-1, 3)
+    seg = np.stack([base, base + grid.reshape(-1, 3)], axis=1).astype(np.float32)
+    bps = server.scene.add_line_segments("/bps", points=seg, colors=BPS, thickness=1.0, thickness_units="screen", visible=False)
+    show_bps = server.gui.add_checkbox("BPS vectors", initial_value=False)
+    show_bps.on_update(lambda _: setattr(bps, "visible", show_bps.value))
+    show_map = server.gui.add_checkbox("exploration map", initial_value=True)
+    show_map.on_update(lambda _: setattr(cells, "visible", show_map.value))
+    status = server.gui.add_markdown("")
+    viewer.nodes += [target, cells, bps, show_bps, show_map, status]
+    viewer.ee_line(q, "/path", PATHS[0])
+
+    targets, counts = np.asarray(targets), np.asarray(counts)
+    dist = np.asarray(metrics["keypoint_distance"])
+    sub = env.cfg.substeps
+
+    def at(k):  # fabric step k -> its policy step's target, map and status
+        i = min(max(k - 1, 0) // sub, max(steps - 1, 0))
+        target.position, target.wxyz = tuple(targets[i, :3]), tuple(targets[i, 3:])
+        visited = centres[counts[i] > 0]
+        if len(visited):
+            cells.points = visited
+        cells.visible = show_map.value and len(visited) > 0
+        status.content = f"policy step {i + 1}/{steps}, keypoint distance {dist[i]:.3f} m"
+
+    viewer.player([(viewer.arm, q)], env.cfg.fabric_dt, on_frame=at)
+    last = max(steps - 1, 0)
+    return {
+        "policy": policy,
+        "scene": env.pool.names[int(ep.scene_index)],
+        "steps": steps,
+        "success": bool(np.asarray(metrics["success"])[last]),
+        "collision": bool(np.asarray(metrics["collision"])[last]),
+        "keypoint_distance": float(dist[last]),
+        "fabric_steps": len(q),
+    }
