@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import fabrax  # noqa: F401  (XLA flags before jax)
 from fabrax.problems.clearance import state_clearances
 from fabrax.rl import make_env
+from fabrax.rl.scripted import episode
 from fabrax.rollout import integrate
 
 
@@ -46,6 +47,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--scenes", type=int, default=8, help="generated scenes of each kind in the pool")
     ap.add_argument("--substeps", type=int, default=30)
+    ap.add_argument("--episodes", type=int, default=128, help="episodes of each scripted policy for the baseline rows (0: skip)")
     args = ap.parse_args()
 
     n = args.scenes
@@ -101,6 +103,25 @@ def main() -> None:
         )
         print(json.dumps(rows[-1]), flush=True)
 
+    baselines = []
+    for policy in ("switch", "random") if args.episodes else ():
+        run = jax.jit(jax.vmap(lambda k: episode(env, policy, k)[1]))
+        _, _, _, metrics, alive = run(jax.random.split(jax.random.PRNGKey(2), args.episodes))
+        last = jnp.maximum(jnp.sum(alive, axis=1) - 1, 0)
+        final = {k: jnp.take_along_axis(v, last[:, None], 1)[:, 0] for k, v in metrics.items()}
+        baselines.append(
+            {
+                "policy": policy,
+                "episodes": args.episodes,
+                "success_pct": 100 * float(final["success"].mean()),
+                "collision_pct": 100 * float(final["collision"].mean()),
+                "within_0.08_pct": 100 * float((final["keypoint_distance"] < cfg.success_distance).mean()),
+                "final_keypoint_distance": float(jnp.median(final["keypoint_distance"])),
+                "unique_cells": float(final["unique_cells"].mean()),
+            }
+        )
+        print(json.dumps(baselines[-1]), flush=True)
+
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     meta = {
@@ -115,7 +136,7 @@ def main() -> None:
         "jax": jax.__version__,
         "devices": [str(d) for d in jax.devices()],
     }
-    (out / "rl_env.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))
+    (out / "rl_env.json").write_text(json.dumps({"meta": meta, "rows": rows, "baselines": baselines}, indent=2))
     lines = [
         f"backend {cfg.backend}, {cfg.substeps} fabric substeps per policy step, pool of {env.pool.size} generated scenes "
         f"(capacity {env.pool.scene.capacity}), {meta['cpus']} CPUs",
@@ -128,6 +149,20 @@ def main() -> None:
             f"| {r['envs']} | {r['env_steps_per_s']:,.0f} | {r['ms_per_step']:.1f} | {r['compile_s']:.1f} | "
             f"{r['fabric_ms']:.1f} | {r['checker_ms']:.1f} | {r['observe_ms']:.1f} |"
         )
+    if baselines:
+        lines += [
+            "",
+            f"Scripted policies, {args.episodes} episodes each from resets of the pool (20 s; switch: stage 2, the switch on at the first step;",
+            "random: uniform actions, stage 1, so no success is counted):",
+            "",
+            "| policy | success % | collision % | final keypoint distance < 0.08 % | median final keypoint distance (m) | unique cells |",
+            "|---|---:|---:|---:|---:|---:|",
+        ]
+        for r in baselines:
+            lines.append(
+                f"| {r['policy']} | {r['success_pct']:.1f} | {r['collision_pct']:.1f} | {r['within_0.08_pct']:.1f} | "
+                f"{r['final_keypoint_distance']:.3f} | {r['unique_cells']:.1f} |"
+            )
     (out / "rl_env.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

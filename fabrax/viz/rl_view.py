@@ -4,54 +4,24 @@ Shown: the scene, the goal pose and its keypoints, the end-effector attractor's 
 policy step, the exploration map's visited cells, and on a toggle the static basis point vectors
 (every second grid point along each axis). Actions come from `policy`:
 random (uniform in [-1, 1], curriculum stage 1), switch (stage 2 with the fabric switch on from the
-first step: the pure fabric aimed at the goal) or hold (zero actions: the hand holds its pose).
+first step: the pure fabric aimed at the goal) or hold (`fabrax.rl.scripted`).
 """
 
 from __future__ import annotations
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from fabrax.rl import make_env
 from fabrax.rl.observations import grid_points
+from fabrax.rl.scripted import POLICIES, episode
 from fabrax.scene import to_dict
 from fabrax.viz.app import GOAL, PATHS, Viewer
 from fabrax.viz.scene_view import draw_scene
 
-POLICIES = ("random", "switch", "hold")
 TARGET = (230, 200, 60)
 CELLS = (90, 140, 230)
 BPS = (160, 160, 160)
-
-
-def episode(env, policy: str, key: jax.Array):
-    """One episode of `policy` from a reset: substep configurations (T, S, n), hand targets (T, 7),
-    visit counts (T, cells^3), metrics (T,) per policy step, alive (T,) (False after the episode ended)."""
-    stage = jnp.asarray(2 if policy == "switch" else 1, jnp.int32)
-    k_reset, k_act = jax.random.split(key)
-    state = env.reset(k_reset)
-    state = state.replace(info={**state.info, "stage": stage})
-
-    def body(carry, k):
-        s, alive = carry
-        if policy == "random":
-            a = jax.random.uniform(k, (env.action_size,), minval=-1.0, maxval=1.0)
-        else:
-            a = jnp.zeros(env.action_size).at[-1].set(1.0 if policy == "switch" else -1.0)
-        ep = s.pipeline_state
-        params, _ = env.targets(ep, a, stage)
-        _, qs = env.substeps(ep, params)
-        nxt = env.step(s, a)
-        qs = jnp.where(alive, qs, ep.q)
-        nxt = jax.tree.map(lambda x, y: jnp.where(alive, x, y), nxt, s)
-        target = jnp.concatenate([params["ee"]["target_pos"], params["ee"]["target_quat"]])
-        out = (qs, target, nxt.pipeline_state.counts, nxt.metrics, alive)
-        return (nxt, alive & (nxt.done == 0.0)), out
-
-    keys = jax.random.split(k_act, env.cfg.episode_steps)
-    _, out = jax.lax.scan(body, (state, jnp.ones((), bool)), keys)
-    return state, out
 
 
 def rl_view(viewer: Viewer, fabric_name: str = "panda", policy: str = "random", seed: int = 0, env_cfg: dict | None = None) -> dict:
