@@ -24,7 +24,6 @@ import fabrax  # noqa: F401  (XLA flags before jax)
 from fabrax.problems.clearance import state_clearances
 from fabrax.rl import make_env
 from fabrax.rl.scripted import episode
-from fabrax.rollout import integrate
 
 
 def timed(fn, *args, repeats: int):
@@ -71,20 +70,10 @@ def main() -> None:
         a0 = jnp.zeros((b, env.action_size))
         params, _ = jax.vmap(env.targets, in_axes=(0, 0, None))(ep, a0, jnp.ones((), jnp.int32))
 
-        @jax.jit
-        def substeps(params, ep):  # the fabric alone: `substeps` integrations per env
-            def one(p, e):
-                def body(c, _):
-                    q, qd, _, _ = integrate(env.fabric, p, e.scene, c[0], c[1], cfg.fabric_dt, cfg.integrator)
-                    return (q, qd), q
-
-                return jax.lax.scan(body, (e.fabric_q, e.fabric_qd), None, length=cfg.substeps)[1]
-
-            return jax.vmap(one)(params, ep)
-
+        substeps = jax.jit(jax.vmap(lambda p, e: env.substeps(e, p)[1]))  # the fabric alone
         qs = substeps(params, ep)
         checker = jax.jit(jax.vmap(lambda s, q: state_clearances(env.robot, s, q)))
-        observe = jax.jit(jax.vmap(env._observe))
+        observe = jax.jit(jax.vmap(env.observe))
         compile_s, step_s = timed(rollout, state, jax.random.PRNGKey(1), repeats=args.repeats)
         _, fabric_s = timed(substeps, params, ep, repeats=args.repeats)
         _, check_s = timed(checker, ep.scene, qs, repeats=args.repeats)

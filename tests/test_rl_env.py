@@ -43,6 +43,10 @@ def test_reset_and_step_are_pure_and_batch(env, fns):
     assert moved.reward.shape == (3,) and moved.obs["bps"].shape == (3, 16, 16, 16, 3)
     one = step(jax.tree.map(lambda x: x[1], batch), a)
     np.testing.assert_allclose(moved.obs["q"][1], one.obs["q"], atol=1e-5)
+    full, qs, _ = jax.jit(env.step_with_path)(s1, a)
+    assert qs.shape == (env.cfg.substeps, env.robot.dof)
+    np.testing.assert_array_equal(qs[-1], n1.pipeline_state.q)
+    np.testing.assert_array_equal(full.reward, n1.reward)
 
 
 def test_observation_shapes_and_contents(env, fns):
@@ -205,6 +209,8 @@ def test_bad_config_fails_before_any_jit(env):
         env_config({"substeps": 0})
     with pytest.raises(ValueError, match="env.backend"):
         env_config({"backend": "isaac"})
+    with pytest.raises(ValueError, match="not available yet"):
+        env_config({"backend": "mjx"})
     with pytest.raises(ValueError, match="generated kinds"):
         env_config({"scenes": {"generated": {"forest": 2}}})
     with pytest.raises(ValueError, match="no scene"):

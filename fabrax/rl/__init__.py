@@ -1,7 +1,7 @@
 """RL guide (thesis ch. 3-4): the fabric-guided arm environment in brax's Env API."""
 
 from fabrax.rl.config import EnvConfig, ScenesConfig, env_config
-from fabrax.rl.env import METRICS, Episode, FabricGuideEnv, make_env, scene_bps
+from fabrax.rl.env import METRICS, Episode, FabricGuideEnv, make_env
 from fabrax.rl.scenes import ScenePool, build_pool, sample_episode
 
 __all__ = [
@@ -15,5 +15,4 @@ __all__ = [
     "env_config",
     "make_env",
     "sample_episode",
-    "scene_bps",
 ]

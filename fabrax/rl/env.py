@@ -34,8 +34,8 @@ from fabrax.config import load_fabric, load_robot
 from fabrax.fabrics import ArmFabric, Params
 from fabrax.problems.clearance import state_clearances
 from fabrax.problems.mbm import load_mbm
-from fabrax.rl.config import EnvConfig, env_config
-from fabrax.rl.observations import bps_vectors, cell_centres, cell_index, grid_points, intrinsic_reward, keypoint_distance, point_distances
+from fabrax.rl.config import BUILT, EnvConfig, env_config
+from fabrax.rl.observations import cell_centres, cell_index, intrinsic_reward, keypoint_distance, point_distances
 from fabrax.rl.scenes import ScenePool, build_pool, sample_episode
 from fabrax.robot.kinematics import frame_pose, keypoints, points, sphere_centers
 from fabrax.rollout.rollout import integrate
@@ -67,12 +67,12 @@ class FabricGuideEnv(Env):
     """brax `Env`: reset(rng) -> State, step(state, action) -> State; pure, jit- and vmap-able."""
 
     def __init__(self, fabric: ArmFabric, params: Params, pool: ScenePool, cfg: EnvConfig):
-        if cfg.backend != "kinematic":
-            raise ValueError(f"env.backend '{cfg.backend}' is not available yet (backends built: kinematic)")
+        if cfg.backend not in BUILT:
+            raise ValueError(f"env.backend '{cfg.backend}' is not available yet (built: {', '.join(BUILT)})")
         self.fabric, self.params, self.pool, self.cfg = fabric, params, pool, cfg
         self.robot = fabric.robot
         self._hand = self.robot.frame_point(fabric.goal_frame)
-        self._centres = cell_centres(cfg.map_cells, *cfg.bounds)
+        self.centres = cell_centres(cfg.map_cells, *cfg.bounds)
         self._modes = jnp.asarray(cfg.scenes.modes, jnp.float32)
 
     # -- brax Env properties --------------------------------------------------------------
@@ -123,7 +123,7 @@ class FabricGuideEnv(Env):
             t=jnp.zeros((), jnp.int32),
         )
         zeros = {k: jnp.zeros(()) for k in METRICS}
-        obs = self._observe(ep, self.pool.bps[i])
+        obs = self.observe(ep, self.pool.bps[i])
         zeros["keypoint_distance"] = keypoint_distance(obs["hand_keypoints"].reshape(8, 3), ep.goal_keypoints)
         return State(ep, obs, jnp.zeros(()), jnp.zeros(()), zeros, {"stage": jnp.ones((), jnp.int32)})
 
@@ -154,6 +154,11 @@ class FabricGuideEnv(Env):
         return jax.lax.scan(substep, (ep.fabric_q, ep.fabric_qd, ep.fabric_qdd), None, length=cfg.substeps)
 
     def step(self, state: State, action: jax.Array) -> State:
+        return self.step_with_path(state, action)[0]
+
+    def step_with_path(self, state: State, action: jax.Array):
+        """`step`, also returning every fabric substep's q (substeps, n) and the commanded fabric
+        parameters (for viewers and scripted rollouts, without running the fabric twice)."""
         cfg, robot, ep = self.cfg, self.robot, state.pipeline_state
         stage = state.info["stage"]
         params, switch = self.targets(ep, action, stage)
@@ -165,10 +170,10 @@ class FabricGuideEnv(Env):
         cells, inside = cell_index(hand, cfg.map_cells, *cfg.bounds)
         visited = jnp.zeros(cfg.map_cells**3, bool).at[cells].max(inside)
         counts = jnp.where(visited, jnp.minimum(ep.counts, 254) + 1, ep.counts).astype(jnp.uint8)
-        r_int = intrinsic_reward(counts, visited, self._centres, ep.goal_pos)
+        r_int = intrinsic_reward(counts, visited, self.centres, ep.goal_pos)
 
         ep = ep.replace(q=q, qd=qd, fabric_q=q, fabric_qd=qd, fabric_qdd=qdd, counts=counts, switch=switch, t=ep.t + 1)
-        obs = self._observe(ep, state.obs["bps"])
+        obs = self.observe(ep, state.obs["bps"])
         dist = keypoint_distance(obs["hand_keypoints"].reshape(8, 3), ep.goal_keypoints)
         success = (dist < cfg.success_distance) & (stage >= 2)
         r_sparse = jnp.where(success, cfg.sparse_reward, 0.0)
@@ -183,9 +188,10 @@ class FabricGuideEnv(Env):
             "r_intrinsic": r_int,
             "switch": switch.astype(jnp.float32),
         }
-        return state.replace(pipeline_state=ep, obs=obs, reward=reward, done=done.astype(jnp.float32), metrics=metrics)
+        new = state.replace(pipeline_state=ep, obs=obs, reward=reward, done=done.astype(jnp.float32), metrics=metrics)
+        return new, qs, params
 
-    def _observe(self, ep: Episode, bps: jax.Array) -> dict[str, jax.Array]:
+    def observe(self, ep: Episode, bps: jax.Array) -> dict[str, jax.Array]:
         """Table 3.2 from the episode state; the static BPS comes from the pool (computed once per scene)."""
         cfg, robot = self.cfg, self.robot
         m = cfg.map_cells
@@ -203,18 +209,11 @@ class FabricGuideEnv(Env):
         }
 
 
-def scene_bps(env: FabricGuideEnv, scene: Scene) -> jax.Array:
-    """The static basis point vectors of any scene on this env's grid (e.g. a held-out evaluation scene)."""
-    return bps_vectors(scene, grid_points(env.cfg.bps_cells, *env.cfg.bounds), env.cfg.bps_clip)
-
-
 def make_env(cfg: EnvConfig | dict | None = None, robot: str = "panda", fabric: str | dict = "panda", data_dir=None) -> FabricGuideEnv:
     """The environment from configs: robot and fabric by config name (configs/robot, configs/fabric),
     `cfg` an `EnvConfig` or its mapping. MBM train problems (1-50) of `cfg.scenes.mbm_classes` are
     read from `data_dir` (default $FABRAX_DATA)."""
     cfg = cfg if isinstance(cfg, EnvConfig) else env_config(cfg)
-    if cfg.backend != "kinematic":
-        raise ValueError(f"env.backend '{cfg.backend}' is not available yet (backends built: kinematic)")
     rob = load_robot(robot)
     arm, params = load_fabric(rob, fabric)
     problems = load_mbm(rob, data_dir, cfg.scenes.mbm_classes, split="train", limit=cfg.scenes.mbm_limit) if cfg.scenes.mbm_classes else []

@@ -27,11 +27,8 @@ def episode(env, policy: str, key: jax.Array):
             a = jax.random.uniform(k, (env.action_size,), minval=-1.0, maxval=1.0)
         else:
             a = jnp.zeros(env.action_size).at[-1].set(1.0 if policy == "switch" else -1.0)
-        ep = s.pipeline_state
-        params, _ = env.targets(ep, a, stage)
-        _, qs = env.substeps(ep, params)
-        nxt = env.step(s, a)
-        qs = jnp.where(alive, qs, ep.q)
+        nxt, qs, params = env.step_with_path(s, a)
+        qs = jnp.where(alive, qs, s.pipeline_state.q)
         nxt = jax.tree.map(lambda x, y: jnp.where(alive, x, y), nxt, s)
         target = jnp.concatenate([params["ee"]["target_pos"], params["ee"]["target_quat"]])
         out = (qs, target, nxt.pipeline_state.counts, nxt.metrics, alive)

@@ -42,7 +42,7 @@ def rl_view(viewer: Viewer, fabric_name: str = "panda", policy: str = "random", 
     kp = np.asarray(ep.goal_keypoints, np.float32)
     viewer.nodes.append(server.scene.add_point_cloud("/goal_keypoints", points=kp, colors=GOAL, point_size=0.015))
     target = server.scene.add_frame("/ee_target", axes_length=0.08, axes_radius=0.004)
-    centres = np.asarray(env._centres, np.float32)
+    centres = np.asarray(env.centres, np.float32)
     cells = server.scene.add_point_cloud("/exploration", points=centres[:1], colors=CELLS, point_size=0.02)
     grid = np.asarray(start.obs["bps"])[::2, ::2, ::2]
     base = np.asarray(grid_points(env.cfg.bps_cells, *env.cfg.bounds))[::2, ::2, ::2].reshape(-1, 3)
