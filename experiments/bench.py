@@ -13,16 +13,16 @@ from __future__ import annotations
 from pathlib import Path
 
 import hydra
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
-import fabrax  # noqa: F401  (XLA flags)
+from fabrax import config
 
 
 @hydra.main(config_path="../configs", config_name="bench", version_base=None)
 def main(dcfg: DictConfig) -> None:
     from fabrax.bench.cli import run_bench
 
-    cfg = OmegaConf.to_container(dcfg, resolve=True)
+    cfg = config.resolve(dcfg)
     run_bench(cfg, Path(hydra.core.hydra_config.HydraConfig.get().runtime.output_dir))
 
 

@@ -17,15 +17,18 @@ output directory, or this script's) without solving again; its settings must mat
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import platform
 import time
 from pathlib import Path
 
 import hydra
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 import fabrax  # noqa: F401  (XLA flags)
+
+log = logging.getLogger("gfcs")  # hydra sends it to the terminal and to the run's gfcs.log
 
 
 def problems_for(cfg: dict, robot, split: str, limit: int):
@@ -47,9 +50,9 @@ def main(dcfg: DictConfig) -> None:
     from fabrax.planners.gfcs.selfsup import run as learn
     from fabrax.planners.gfcs.selfsup import settings
 
-    cfg = OmegaConf.to_container(dcfg, resolve=True)
+    cfg = config.resolve(dcfg)
     out = Path(hydra.core.hydra_config.HydraConfig.get().runtime.output_dir)
-    robot = config.load_robot(cfg["robot"] or ("panda_mbm" if cfg["problems"] == "mbm" else "panda"))
+    robot = config.load_robot(config.robot_choice(cfg))
     fabric, params = config.load_fabric(robot, cfg["fabric"])
     m = dict(cfg["method"])
     gfcs_cfg = gfcs_config(m, cfg)
@@ -58,10 +61,10 @@ def main(dcfg: DictConfig) -> None:
     learner, learn_s = None, 0.0
     if "gfcs_learned" in cfg["evaluate"]:
         train = [p for p in problems_for(cfg, robot, "train", cfg["train_limit"]) if p.valid]
-        print(f"[gfcs] {cfg['class_name']}: learning on {len(train)} train problems, {ss_cfg.passes} passes -> {out}")
+        log.info(f"{cfg['class_name']}: learning on {len(train)} train problems, {ss_cfg.passes} passes -> {out}")
         t0 = time.perf_counter()
         try:
-            learner = learn(fabric, params, train, gfcs_cfg, ss_cfg, out / "sampler.msgpack", enc, log=lambda s: print("[gfcs]", s, flush=True))
+            learner = learn(fabric, params, train, gfcs_cfg, ss_cfg, out / "sampler.msgpack", enc, log=log.info)
         except ValueError as e:  # a checkpoint of other settings, or an unreadable one
             raise SystemExit(f"experiments/gfcs.py: {e}") from None
         learn_s = time.perf_counter() - t0
@@ -83,10 +86,10 @@ def main(dcfg: DictConfig) -> None:
     if cfg["reactive"]["n_obstacles"] > 0:
         solved = rows if not cfg["reactive"]["results"] else saved_rows(cfg, Path(cfg["reactive"]["results"]))
         meta["reactive"] = reactive(cfg, robot, fabric, params, test, solved)
-        print(f"[gfcs] reactive re-execution: {meta['reactive']['summary']}")
+        log.info(f"reactive re-execution: {meta['reactive']['summary']}")
     write(rows, out, meta)
     if rows:
-        print(summary_table(rows))
+        log.info("\n" + summary_table(rows))
 
 
 SAME = ("dt", "t_max", "fabric", "frame")  # settings a saved solution's re-execution depends on

@@ -1,5 +1,6 @@
 """fabrax: geometric fabrics for robot motion generation in JAX."""
 
+import logging as _logging
 import os as _os
 
 # XLA's CPU fusion emitters compile long chains of small ops (kinematics,
@@ -8,5 +9,9 @@ import os as _os
 _flags = _os.environ.get("XLA_FLAGS", "")
 if "xla_cpu_use_fusion_emitters" not in _flags:
     _os.environ["XLA_FLAGS"] = (_flags + " --xla_cpu_use_fusion_emitters=false").strip()
+
+# jax logs "Unable to initialize backend 'tpu'" at INFO on every machine without one; hydra apps log
+# INFO to the console and the run's log file, where that line only misleads.
+_logging.getLogger("jax._src.xla_bridge").setLevel(_logging.WARNING)
 
 __version__ = "0.1.0"

@@ -36,11 +36,27 @@ def load(group: str, name: str) -> dict[str, Any]:
     return OmegaConf.to_container(_load_node(group, name), resolve=True)
 
 
-def load_robot(name: str = "panda"):
-    """A `Robot` from configs/robot/<name>.yaml."""
+def load_robot(name: str | dict = "panda"):
+    """A `Robot` from configs/robot/<name>.yaml, or from an already composed robot config (a dict,
+    e.g. the `robot` group of a hydra config with overrides such as robot.spheres.budget=40)."""
     from fabrax.robot import build_robot
 
-    return build_robot(load("robot", name))
+    return build_robot(load("robot", name) if isinstance(name, str) else name)
+
+
+def robot_choice(cfg: dict) -> str | dict:
+    """The robot of an experiment config: its `robot` group if one was chosen (robot=NAME), else
+    panda_mbm for MotionBenchMaker problems (cuRobo's spheres, MBM's finger opening) and panda otherwise."""
+    return cfg.get("robot") or ("panda_mbm" if cfg.get("problems") == "mbm" else "panda")
+
+
+def resolve(cfg) -> dict[str, Any]:
+    """A composed hydra config as a plain dict. Its `data_dir` becomes $FABRAX_DATA first when that
+    is unset, so that the config files interpolating $FABRAX_DATA (the robot's sphere file) read it."""
+    data_dir = cfg.get("data_dir")
+    if data_dir and not os.environ.get("FABRAX_DATA"):
+        os.environ["FABRAX_DATA"] = str(Path(data_dir).resolve())
+    return OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)
 
 
 def load_fabric(robot, name: str | dict = "panda"):

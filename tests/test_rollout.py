@@ -191,7 +191,9 @@ def test_goals_on_joint_limits_are_reached(fabric, panda):
     goals[0][1], goals[1][5], goals[2][4] = hi[1], hi[5], lo[4]
     goals[2][6] = hi[6]
     for g in goals:
-        tr = jax.jit(lambda p: rollout(fab, p, sc.empty(cuboids=1), READY, jnp.zeros(7), fab.reached, dt=0.01, steps=700))(fab.with_joint_goal(params, jnp.asarray(g)))
+        tr = jax.jit(lambda p: rollout(fab, p, sc.empty(cuboids=1), READY, jnp.zeros(7), fab.reached, dt=0.01, steps=700))(
+            fab.with_joint_goal(params, jnp.asarray(g))
+        )
         assert bool(tr.reached), g
         q = np.asarray(tr.q[: int(tr.length)])
         assert np.all(q >= lo - 1e-5) and np.all(q <= hi + 1e-5)
@@ -219,7 +221,9 @@ def test_sliding_along_a_surface_is_pushed_off(panda):
     kin0 = point_kinematics(panda, q, jnp.zeros(7), panda.sphere_frame, panda.sphere_local)
     s = 40
     c, r = np.asarray(kin0.x[:, s]), float(panda.sphere_radius[s])
-    wall = sc.from_dict({"obstacles": [{"type": "cuboid", "center": [float(c[0]), float(c[1]), float(c[2]) - r - 0.03 - 0.01], "size": [2.0, 2.0, 0.02]}]})
+    wall = sc.from_dict(
+        {"obstacles": [{"type": "cuboid", "center": [float(c[0]), float(c[1]), float(c[2]) - r - 0.03 - 0.01], "size": [2.0, 2.0, 0.02]}]}
+    )
     jac = np.asarray(kin0.jac[:, :, s])
     qd = jnp.asarray(np.linalg.lstsq(jac, np.array([0.5, 0.0, 0.0]), rcond=None)[0], jnp.float32)  # sphere s slides along x
     kin = point_kinematics(panda, q, qd, panda.sphere_frame, panda.sphere_local)
@@ -230,3 +234,19 @@ def test_sliding_along_a_surface_is_pushed_off(panda):
         pushes.append(-(jac[2] @ np.asarray(t.apply(t.init(), inputs).f_geom)))  # upward part of -f_geom through sphere s
     assert abs(float(kin.xd[2, s])) < 1e-3
     assert pushes[1] > pushes[0] + 1e-3
+
+
+def test_bad_start_and_goal_raise_named_field(fabric):
+    """A NaN start (concrete, even when closed over inside jit) and wrong-length goals are refused at
+    the call, naming the argument, instead of an all-NaN trajectory or an XLA broadcasting error."""
+    fab, params = fabric
+    p = fab.with_joint_goal(params, GOAL)
+    nan_start = READY.at[2].set(jnp.nan)
+    with pytest.raises(ValueError, match="q0: NaN"):
+        jax.jit(lambda p: rollout(fab, p, sc.empty(cuboids=1), nan_start, jnp.zeros(7), fab.reached, steps=10))(p)
+    with pytest.raises(ValueError, match="qd0: expected 7 values"):
+        rollout(fab, p, sc.empty(cuboids=1), READY, jnp.zeros(6), fab.reached, steps=10)
+    with pytest.raises(ValueError, match="q_goal: expected 7 values"):
+        fab.with_joint_goal(params, GOAL[:6])
+    with pytest.raises(ValueError, match="quat_wxyz: expected 4"):
+        fab.with_pose_goal(params, jnp.zeros(3), jnp.zeros(3))

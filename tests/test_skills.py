@@ -231,13 +231,13 @@ def test_two_ik_branches_trace_the_same_path(panda):
 
 @pytest.mark.slow
 def test_skills_experiment_end_to_end(tmp_path):
-    from omegaconf import OmegaConf
+    from hydra import compose, initialize_config_dir
 
     from fabrax import config
     from fabrax.skills.experiment import run
 
-    cfg = OmegaConf.to_container(OmegaConf.load(config.config_dir() / "skills.yaml"), resolve=True)
-    cfg.pop("defaults", None)
+    with initialize_config_dir(config_dir=str(config.config_dir()), version_base=None):
+        cfg = config.resolve(compose("skills"))
     cfg.update(points=30, pairs=8, graph_nodes=24, timing={"repeats": 2, "batch": 4})
     cfg["vae"].update(steps=600, rbf_steps=150, centers=16)
     cfg["follow"].update(waypoints=4)

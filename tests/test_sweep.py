@@ -60,3 +60,26 @@ def test_skills_config_composes_and_rejects_unknown_keys():
         assert cfg.vae.latent == 4 and cfg.obstacle.point == 5
         with pytest.raises(ConfigCompositionException, match="nonexistent_key"):
             compose("skills", overrides=["vae.nonexistent_key=1"])
+
+
+@pytest.mark.parametrize("app", ["bench", "gfcs", "skills"])
+def test_robot_and_fabric_are_groups_with_field_overrides(app, tmp_path, monkeypatch):
+    """robot=NAME and fabric=NAME select configs/robot and configs/fabric in every app; their fields
+    override like any other key; data_dir reaches the robot's $FABRAX_DATA sphere file."""
+    from hydra import compose, initialize_config_dir
+
+    from fabrax import config
+
+    monkeypatch.setenv("FABRAX_DATA", "unset")
+    monkeypatch.delenv("FABRAX_DATA")
+    overrides = ["robot=panda_mbm", "robot.spheres.set=other", "fabric=panda", "fabric.terms.goal.k_force=2.5"]
+    overrides += [] if app == "skills" else [f"data_dir={tmp_path}"]
+    with initialize_config_dir(config_dir=str(ROOT / "configs"), version_base=None):
+        cfg = config.resolve(compose(app, overrides=overrides))
+    assert cfg["robot"]["held"] == {"panda_finger_joint1": 0.065} and cfg["robot"]["spheres"]["set"] == "other"
+    assert cfg["fabric"]["terms"]["goal"]["k_force"] == 2.5
+    if app != "skills":
+        assert cfg["robot"]["spheres"]["file"] == f"{tmp_path}/panda_spheres.json"
+        with initialize_config_dir(config_dir=str(ROOT / "configs"), version_base=None):
+            default = config.resolve(compose(app, overrides=["problems=mbm"]))
+        assert config.robot_choice(default) == "panda_mbm"

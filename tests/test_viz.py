@@ -146,3 +146,23 @@ def test_view_cli_rejects_bad_options_before_serving(args, message, capsys):
     with pytest.raises(SystemExit):
         main(args)
     assert message in capsys.readouterr().err
+
+
+def test_camera_sees_arm_start_and_goal_past_the_obstacles(panda):
+    """The initial view of a problem: every sight line to the arm's base, start and goal hands is
+    clear of the scene (the built-in shelf stood between the default camera and the arm)."""
+    from fabrax.problems.generators import demo_problem
+    from fabrax.scene import distance
+    from fabrax.viz.app import camera_view
+
+    problem = demo_problem(panda)
+    hand = lambda q: np.asarray(frame_pose(panda, jnp.asarray(q, jnp.float32), "panda_hand").translation())  # noqa: E731
+    targets = np.stack([np.array([0.0, 0.0, 0.3]), hand(problem.start_q), hand(problem.goal_q)])
+    eye, look_at = camera_view(problem.scene, targets)
+    t = np.linspace(0.05, 0.95, 50)[:, None, None]
+    lines = np.asarray(eye) + t * (targets[None] - np.asarray(eye))
+    assert float(np.min(np.asarray(distance(problem.scene, jnp.asarray(lines.reshape(-1, 3), jnp.float32))))) > 0.02
+    assert np.allclose(look_at, targets.mean(0))
+    old = np.array([1.6, -1.3, 1.1])  # the former fixed camera: its view of the goal crosses the shelf
+    lines = old + t * (targets[None] - old)
+    assert float(np.min(np.asarray(distance(problem.scene, jnp.asarray(lines.reshape(-1, 3), jnp.float32))))) < 0.0

@@ -22,15 +22,15 @@ def compose(overrides: list[str]):
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
     from hydra.errors import HydraException
-    from omegaconf import OmegaConf
     from omegaconf.errors import MissingMandatoryValue
 
     try:
         with initialize_config_dir(config_dir=str(config.config_dir()), version_base=None):
             cfg = hydra_compose("bench", overrides=overrides)
-        return OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)
+        return config.resolve(cfg)
     except (HydraException, MissingMandatoryValue) as e:
-        raise SystemExit(f"fabrax bench: {e}") from None
+        message = " ".join(str(e).split("\nConfig search path")[0].split())  # one line, without hydra's search path
+        raise SystemExit(f"fabrax bench: {message}") from None
 
 
 def check(cfg: dict) -> None:
@@ -88,7 +88,8 @@ def make_method(cfg: dict, robot):
             try:
                 learned = dict(zip(("learner", "selfsup", "encoding"), load_run(m["run"], robot, gfcs_cfg.n_commands)))
             except (FileNotFoundError, ValueError) as e:
-                raise SystemExit(f"fabrax bench: {e}") from None
+                message = " ".join(str(e).split("\nConfig search path")[0].split())  # one line, without hydra's search path
+        raise SystemExit(f"fabrax bench: {message}") from None
         return GFCSMethod(fabric, params, gfcs_cfg, m["name"], tuple(m["report"]), cfg["seed"], **learned)
     if kind == "ompl":
         return OMPLMethod(dt=cfg["dt"], **m)
@@ -104,9 +105,7 @@ def run_bench(cfg: dict, out: Path) -> list[dict]:
     from fabrax.bench.runner import run, summary_table, write
 
     check(cfg)
-    if cfg["data_dir"] and not os.environ.get("FABRAX_DATA"):
-        os.environ["FABRAX_DATA"] = str(Path(cfg["data_dir"]).resolve())  # robot configs read their data files from it
-    robot_name = cfg["robot"] or ("panda_mbm" if cfg["problems"] == "mbm" else "panda")
+    robot_name = config.robot_choice(cfg)
     try:
         robot = config.load_robot(robot_name)
         problems = load_problems(cfg, robot)

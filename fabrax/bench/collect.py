@@ -74,7 +74,7 @@ def markdown(rows: list[dict]) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="fabrax collect", description=__doc__.splitlines()[0])
     ap.add_argument("dirs", nargs="+", type=Path, help="sweep or run directories")
-    ap.add_argument("--out", type=Path, default=None, help="write <out>.md and <out>.json")
+    ap.add_argument("--out", type=Path, default=None, help="write <out>.md and <out>.json (default: collected.md/.json in the first directory)")
     args = ap.parse_args(argv)
     try:
         rows = collect(args.dirs)
@@ -84,8 +84,9 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"fabrax collect: no results.json under {', '.join(map(str, args.dirs))}")
     table = markdown(rows)
     print(table)
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.with_suffix(".md").write_text(table)
-        args.out.with_suffix(".json").write_text(json.dumps(rows, indent=1))
+    out = args.out or args.dirs[0] / "collected"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".md").write_text(table)
+    out.with_suffix(".json").write_text(json.dumps(rows, indent=1))
+    print(f"table: {out.with_suffix('.md')}")
     return 0

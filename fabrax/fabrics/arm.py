@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
+from fabrax import validate
 from fabrax.fabrics.fabric import Fabric, Params
 from fabrax.fabrics.terms import TERMS
 from fabrax.robot.kinematics import frame_pose
@@ -53,6 +54,7 @@ class ArmFabric(Fabric):
         while the joint attractor shapes the arm (thesis §3.3; both targets agree at q_goal)."""
         if not self._has("goal"):
             raise ValueError("this fabric has no 'goal' joint attractor term")
+        validate.vector("q_goal", q_goal, self.robot.dof)
         params = self._set(params, "goal", target=q_goal, weight=1.0)
         params = self._set(params, "posture", weight=0.0)
         if pose and self._has("ee"):
@@ -69,6 +71,10 @@ class ArmFabric(Fabric):
         so it is held more loosely)."""
         if not self._has("ee"):
             raise ValueError("this fabric has no 'ee' end-effector attractor term")
+        validate.vector("position", position, 3)
+        validate.vector("quat_wxyz", quat_wxyz, 4)
+        if posture is not None:
+            validate.vector("posture", posture, self.robot.dof)
         params = self._set(params, "ee", target_pos=position, target_quat=quat_wxyz, weight=1.0)
         params = self._set(params, "goal", weight=0.0)
         if posture is not None:

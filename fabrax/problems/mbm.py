@@ -54,33 +54,73 @@ def _compose(pose_a, pose_b):
     return np.asarray(t.translation()).tolist(), np.asarray(t.rotation().wxyz).tolist()
 
 
+def _pose(pose, where: str) -> tuple[list[float], list[float]]:
+    """(position, quat wxyz) of a MoveIt pose mapping."""
+    try:
+        pos = pose["position"]
+        pos = [float(pos[k]) for k in ("x", "y", "z")] if isinstance(pos, dict) else [float(v) for v in pos]
+        q = pose["orientation"]
+        q = [q[k] for k in ("x", "y", "z", "w")] if isinstance(q, dict) else q
+        quat = _quat_xyzw_to_wxyz(q)
+    except (KeyError, TypeError, ValueError) as e:
+        raise ValueError(f"{where}: malformed pose {pose!r}") from e
+    if len(pos) != 3:
+        raise ValueError(f"{where}: position needs 3 numbers, got {pos!r}")
+    if not np.all(np.isfinite(pos + quat)):
+        raise ValueError(f"{where}: NaN or infinite pose {pose!r}")
+    return pos, quat
+
+
+# MoveIt's shape_msgs/SolidPrimitive dimensions per type.
+_DIMS = {"box": 3, "cylinder": 2, "sphere": 1}
+
+
 def parse_scene(text: str, where: str = "scene") -> dict:
-    """A MoveIt PlanningScene YAML as a fabrax scene dict."""
+    """A MoveIt PlanningScene YAML as a fabrax scene dict; a malformed object raises one line naming `where` and the object."""
     try:
         data = yaml.safe_load(text)
         objects = data["world"]["collision_objects"] or []
     except (yaml.YAMLError, KeyError, TypeError) as e:
         raise ValueError(f"malformed MoveIt scene {where}: {e}") from e
+    if not isinstance(objects, list):
+        raise ValueError(f"{where}: world.collision_objects must be a list, got {objects!r}")
     obstacles = []
-    for obj in objects:
-        oid = obj.get("id", "?")
-        base = None
-        if "pose" in obj:
-            base = (obj["pose"]["position"], _quat_xyzw_to_wxyz(obj["pose"]["orientation"]))
-        for prim, pose in zip(obj.get("primitives", []), obj.get("primitive_poses", []), strict=True):
-            pos, quat = pose["position"], _quat_xyzw_to_wxyz(pose["orientation"])
+    for k, obj in enumerate(objects):
+        if not isinstance(obj, dict):
+            raise ValueError(f"{where}: collision_objects[{k}] is not a mapping")
+        oid = obj.get("id", f"collision_objects[{k}]")
+        at = f"{where}: object {oid!r}"
+        for key in ("meshes", "planes"):
+            if obj.get(key):
+                raise ValueError(f"{at} has {key}, which fabrax scenes do not support (primitives only)")
+        prims, poses = obj.get("primitives") or [], obj.get("primitive_poses") or []
+        for key, value in (("primitives", prims), ("primitive_poses", poses)):
+            if not isinstance(value, list):
+                raise ValueError(f"{at}: {key} must be a list, got {value!r}")
+        if len(prims) != len(poses):
+            raise ValueError(f"{at} has {len(prims)} primitives but {len(poses)} primitive_poses")
+        base = _pose(obj["pose"], at) if "pose" in obj else None
+        for prim, pose in zip(prims, poses):
+            if not isinstance(prim, dict) or "type" not in prim or "dimensions" not in prim:
+                raise ValueError(f"{at}: a primitive needs 'type' and 'dimensions', got {prim!r}")
+            kind = prim["type"]
+            if not isinstance(kind, str) or kind not in _DIMS:
+                raise ValueError(f"{at} has unsupported primitive {kind!r}")
+            try:
+                dims = [float(v) for v in prim["dimensions"]]
+            except (TypeError, ValueError) as e:
+                raise ValueError(f"{at}: {kind} dimensions are not numbers: {prim['dimensions']!r}") from e
+            if len(dims) != _DIMS[kind] or not all(0 < d < np.inf for d in dims):
+                raise ValueError(f"{at}: a {kind} needs {_DIMS[kind]} positive dimensions, got {dims}")
+            pos, quat = _pose(pose, at)
             if base is not None:
                 pos, quat = _compose(base, (pos, quat))
-            dims = [float(v) for v in prim["dimensions"]]
-            kind = prim["type"]
             if kind == "box":
                 obstacles.append({"type": "cuboid", "name": oid, "center": list(pos), "quat_wxyz": quat, "size": dims})
             elif kind == "cylinder":
                 obstacles.append({"type": "cylinder", "name": oid, "center": list(pos), "quat_wxyz": quat, "length": dims[0], "radius": dims[1]})
-            elif kind == "sphere":
-                obstacles.append({"type": "sphere", "name": oid, "center": list(pos), "radius": dims[0]})
             else:
-                raise ValueError(f"{where}: object '{oid}' has unsupported primitive '{kind}'")
+                obstacles.append({"type": "sphere", "name": oid, "center": list(pos), "radius": dims[0]})
     return {"obstacles": obstacles}
 
 

@@ -209,7 +209,7 @@ class FabricGuideEnv(Env):
         }
 
 
-def make_env(cfg: EnvConfig | dict | None = None, robot: str = "panda", fabric: str | dict = "panda", data_dir=None) -> FabricGuideEnv:
+def make_env(cfg: EnvConfig | dict | None = None, robot: str | dict = "panda", fabric: str | dict = "panda", data_dir=None) -> FabricGuideEnv:
     """The environment from configs: robot and fabric by config name (configs/robot, configs/fabric),
     `cfg` an `EnvConfig` or its mapping. MBM train problems (1-50) of `cfg.scenes.mbm_classes` are
     read from `data_dir` (default $FABRAX_DATA)."""

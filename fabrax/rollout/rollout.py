@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from fabrax import validate
 from fabrax.fabrics.fabric import Fabric, Params
 from fabrax.fabrics.limits import LIMITERS, acceleration_box
 from fabrax.fabrics.spec import solve
@@ -196,6 +197,8 @@ def rollout_sequence(
     via: the test that ends an intermediate segment (default `reached`), e.g. a looser
     tolerance so that the arm passes a via command without stopping at it.
     """
+    validate.vector("q0", q0, fabric.robot.dof)
+    validate.vector("qd0", qd0, fabric.robot.dof)
     m = jax.tree.leaves(params_seq)[0].shape[0]
     opts = dict(dt=dt, steps=steps, integrator=integrator, limits=limits, chunk=chunk, patience=patience, via=via)
     init, body, finish, n_chunks = _program(fabric, scene, q0, qd0, reached, m, stop_at_goal=stop_at_goal, **opts)
@@ -229,6 +232,8 @@ def rollout_population(
     are returned as not reached, with their unfinished segments charged the
     whole budget. enough=None runs every arm to its end. patience, via: as `rollout_sequence`.
     """
+    validate.vector("q0", q0, fabric.robot.dof)
+    validate.vector("qd0", qd0, fabric.robot.dof)
     m = jax.tree.leaves(params_seqs)[0].shape[1]
     opts = dict(dt=dt, steps=steps, integrator=integrator, limits=limits, chunk=chunk, patience=patience, via=via)
     init, body, finish, n_chunks = _program(fabric, scene, q0, qd0, reached, m, stop_at_goal=True, **opts)

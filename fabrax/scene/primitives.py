@@ -90,6 +90,9 @@ def _unit_quats(prims):
     return prims.replace(quat=q)
 
 
+_FLOAT32_MAX = float(np.finfo(np.float32).max)  # scenes are stored in float32: larger values would become inf
+
+
 def _field(obs: dict, key: str, where: str, n: int | None = None, positive: bool = False) -> np.ndarray:
     if key not in obs:
         raise ValueError(f"{where}: missing field '{key}'")
@@ -99,8 +102,10 @@ def _field(obs: dict, key: str, where: str, n: int | None = None, positive: bool
         raise ValueError(f"{where}.{key}: not numeric ({obs[key]!r})") from e
     if n is not None and v.shape != (n,):
         raise ValueError(f"{where}.{key}: expected {n} numbers, got {obs[key]!r}")
-    if not np.all(np.isfinite(v)):
-        raise ValueError(f"{where}.{key}: NaN or infinite value {obs[key]!r}")
+    if n is None and v.ndim != 0:
+        raise ValueError(f"{where}.{key}: expected one number, got {obs[key]!r}")
+    if not np.all(np.abs(v) < _FLOAT32_MAX):
+        raise ValueError(f"{where}.{key}: NaN, infinite or beyond float32 {obs[key]!r}")
     if positive and not np.all(v > 0):
         raise ValueError(f"{where}.{key}: sizes must be positive, got {obs[key]!r}")
     return v
@@ -109,12 +114,23 @@ def _field(obs: dict, key: str, where: str, n: int | None = None, positive: bool
 def _quat(obs: dict, where: str) -> np.ndarray:
     if "quat_wxyz" not in obs and "quat" not in obs:
         return np.array([1.0, 0.0, 0.0, 0.0])
+    if "quat_wxyz" in obs and "quat" in obs:
+        raise ValueError(f"{where}: give one of 'quat_wxyz' and 'quat', not both")
     key = "quat_wxyz" if "quat_wxyz" in obs else "quat"
     q = _field(obs, key, where, 4)
     norm = np.linalg.norm(q)
     if norm < 1e-6:
         raise ValueError(f"{where}.{key}: zero quaternion")
     return q / norm
+
+
+# The fields each primitive accepts; anything else (a typo, `quat_xyzw`) is refused rather than ignored.
+_ROTATED = {"type", "name", "center", "quat_wxyz", "quat"}
+_KEYS = {
+    "cuboid": _ROTATED | {"size", "half_extents"},
+    "cylinder": _ROTATED | {"radius", "length"},
+    "sphere": {"type", "name", "center", "radius"},
+}
 
 
 # Capacity that holds every benchmark scene (MotionBenchMaker, generated): padding scenes to it gives
@@ -141,15 +157,26 @@ def from_dict(data: dict[str, Any], capacity: dict[str, int] | None = None) -> S
         raise ValueError(f"scene must be a mapping, got {type(data).__name__}")
     unknown = set(data) - {"obstacles", "points", "name"}
     if unknown:
-        raise ValueError(f"scene: unknown keys {sorted(unknown)}")
+        raise ValueError(f"scene: unknown keys {sorted(map(str, unknown))}")
+    obstacles = data.get("obstacles", [])
+    if not isinstance(obstacles, (list, tuple)):
+        raise ValueError(f"obstacles: expected a list, got {obstacles!r} (write 'obstacles: []' for a scene without obstacles)")
     cub, cyl, sph = [], [], []
-    for k, obs in enumerate(data.get("obstacles", [])):
+    for k, obs in enumerate(obstacles):
         where = f"obstacles[{k}]"
         if not isinstance(obs, dict):
             raise ValueError(f"{where}: must be a mapping")
         kind = obs.get("type")
+        kind = "cuboid" if kind == "box" else kind
+        if not isinstance(kind, str) or kind not in _KEYS:
+            raise ValueError(f"{where}.type: unknown primitive {kind!r} (cuboid, cylinder, sphere)")
+        unknown = set(obs) - _KEYS[kind]
+        if unknown:
+            raise ValueError(f"{where}: unknown keys {sorted(map(str, unknown))} for a {kind} (allowed: {', '.join(sorted(_KEYS[kind]))})")
         center = _field(obs, "center", where, 3)
-        if kind in ("cuboid", "box"):
+        if kind == "cuboid":
+            if "half_extents" in obs and "size" in obs:
+                raise ValueError(f"{where}: give one of 'size' and 'half_extents', not both")
             if "half_extents" in obs:
                 half = _field(obs, "half_extents", where, 3, positive=True)
             else:
@@ -159,15 +186,19 @@ def from_dict(data: dict[str, Any], capacity: dict[str, int] | None = None) -> S
             radius = float(_field(obs, "radius", where, positive=True))
             length = float(_field(obs, "length", where, positive=True))
             cyl.append((center, _quat(obs, where), radius, 0.5 * length))
-        elif kind == "sphere":
-            sph.append((center, float(_field(obs, "radius", where, positive=True))))
         else:
-            raise ValueError(f"{where}.type: unknown primitive '{kind}' (cuboid, cylinder, sphere)")
+            sph.append((center, float(_field(obs, "radius", where, positive=True))))
     pts = np.zeros((0, 3))
     if data.get("points") is not None:
-        pts = np.asarray(data["points"], dtype=np.float64).reshape(-1, 3) if len(data["points"]) else pts
-        if not np.all(np.isfinite(pts)):
-            raise ValueError("points: NaN or infinite coordinate")
+        try:
+            pts = np.asarray(data["points"], dtype=np.float64)
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"points: not a list of [x, y, z] numbers ({e})") from e
+        pts = pts.reshape(0, 3) if pts.size == 0 else pts
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ValueError(f"points: expected a list of [x, y, z], got an array of shape {pts.shape}")
+        if not np.all(np.abs(pts) < _FLOAT32_MAX):
+            raise ValueError("points: NaN, infinite or beyond float32 coordinate")
 
     cap = {"cuboids": 0, "cylinders": 0, "spheres": 0, "points": 0, **(capacity or {})}
     sizes = {"cuboids": len(cub), "cylinders": len(cyl), "spheres": len(sph), "points": len(pts)}

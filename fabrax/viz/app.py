@@ -23,14 +23,36 @@ COMMAND = (230, 200, 60)
 PATHS = [(40, 110, 230), (220, 60, 60), (60, 170, 80), (150, 80, 200), (240, 150, 30), (30, 170, 190)]
 
 
+def camera_view(scene, targets: np.ndarray, elevation: float = 0.45, samples: int = 24) -> tuple[tuple, tuple]:
+    """(position, look_at) of a camera that sees every target point (arm base, start and goal hand)
+    with the most obstacle clearance along its sight lines; among clear views, the one looking
+    across the base-to-goal direction (the motion seen side on)."""
+    from fabrax.scene import distance
+
+    centre = targets.mean(0)
+    radius = max(1.8, 2.5 * float(np.max(np.linalg.norm(targets - centre, axis=1))))
+    azimuth = np.linspace(0.0, 2 * np.pi, samples, endpoint=False)
+    eyes = centre + radius * np.stack(
+        [np.cos(azimuth) * np.cos(elevation), np.sin(azimuth) * np.cos(elevation), np.full(samples, np.sin(elevation))], 1
+    )
+    t = np.linspace(0.05, 0.95, 24)[None, None, :, None]
+    lines = eyes[:, None, None] + t * (targets[None, :, None] - eyes[:, None, None])  # (views, targets, t, 3)
+    clearance = np.asarray(distance(scene, jnp.asarray(lines.reshape(-1, 3), jnp.float32))).reshape(samples, -1).min(1)
+    across = targets[-1, :2] - targets[0, :2]
+    across = np.array([-across[1], across[0]]) / (np.linalg.norm(across) + 1e-9)
+    side = np.abs(np.cos(azimuth) * across[0] + np.sin(azimuth) * across[1])
+    best = int(np.argmax(np.where(clearance > 0.02, 1.0, 0.0) * 10.0 + side + np.minimum(clearance, 0.0)))
+    return tuple(float(v) for v in eyes[best]), tuple(float(v) for v in centre)
+
+
 class Viewer:
     """A viser server showing one robot; GUI toggles for its collision spheres."""
 
-    def __init__(self, robot_name: str = "panda", host: str = "127.0.0.1", port: int = 8080, frame: str | None = None):
+    def __init__(self, robot_name: str | dict = "panda", host: str = "127.0.0.1", port: int = 8080, frame: str | None = None):
         import viser
 
-        self.robot_name = robot_name
-        self.robot_cfg = config.load("robot", robot_name)
+        self.robot_cfg = config.load("robot", robot_name) if isinstance(robot_name, str) else robot_name
+        self.robot_name = robot_name  # a configs/robot name or a composed robot config
         self.robot = config.load_robot(robot_name)
         self.frame = frame or ("panda_hand" if "panda_hand" in self.robot.frame_names else self.robot.frame_names[-1])
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
@@ -72,8 +94,16 @@ class Viewer:
         self.nodes, self.ghosts = [], []
 
     def show_problem(self, problem: Problem) -> None:
-        """Scene, start pose and goal: a ghost arm for a joint goal, a frame for a pose goal."""
+        """Scene, start pose and goal: a ghost arm for a joint goal, a frame for a pose goal; the
+        camera frames the arm, its start and its goal from the side where no obstacle hides them."""
         self.nodes += draw_scene(self.server, problem.scene, "/scene")
+        hand = lambda q: np.asarray(frame_pose(self.robot, jnp.asarray(q, jnp.float32), self.frame).translation())  # noqa: E731
+        targets = [np.array([0.0, 0.0, 0.3]), hand(problem.start_q)]
+        targets.append(hand(problem.goal_q) if problem.goal_q is not None else np.asarray(problem.goal_pose[0], float))
+        position, look_at = camera_view(problem.scene, np.stack(targets))
+        self.server.initial_camera.position, self.server.initial_camera.look_at = position, look_at
+        for client in self.server.get_clients().values():
+            client.camera.position, client.camera.look_at = position, look_at
         self.arm.update(problem.start_q)
         if problem.goal_q is not None:
             self.ghost(problem.goal_q, "/goal")
@@ -130,12 +160,19 @@ def view_demo(viewer: Viewer, fabric_name: str = "panda", dt: float = 0.01, t_ma
 
     fabric, params = config.load_fabric(viewer.robot, fabric_name)
     problem = demo_problem(viewer.robot)
+    viewer.show_problem(problem)  # scene, start and goal appear while the fabric compiles
+    status = viewer.server.gui.add_markdown("**Solving with the fabric** (the first call compiles it, about a minute on a laptop CPU)...")
+    print("[view] solving the demo problem with the fabric (the first call compiles it, about a minute on a laptop CPU)...", flush=True)
+    t0 = time.perf_counter()
     tr = reach(fabric, params, batch([problem]), dt=dt, steps=int(round(t_max / dt)))
     q = np.asarray(tr.q[0, : int(tr.length[0])])
-    viewer.show_problem(problem)
+    reached = bool(tr.reached[0])
+    status.content = (
+        f"**{problem.name}**: {'reached' if reached else 'not reached'} in {len(q) * dt:.2f} s of motion (solved in {time.perf_counter() - t0:.0f} s)"
+    )
     viewer.ee_line(q, "/path", PATHS[0])
     viewer.player([(viewer.arm, q)], dt)
-    return {"problem": problem.name, "reached": bool(tr.reached[0]), "steps": len(q)}
+    return {"problem": problem.name, "reached": reached, "steps": len(q)}
 
 
 def live(viewer: Viewer, fabric_name: str = "panda", dt: float = 0.01, problem: Problem | None = None, substeps: int = 2) -> dict:
