@@ -6,6 +6,7 @@ actions (no auto-reset), after a warm-up call. The scene pool is generated (cubo
 surrounding shelves, flying cuboids), so it needs no data. Writes JSON and a markdown table.
 
     python experiments/bench_rl_env.py --out bench_out/rl_env
+    python experiments/bench_rl_env.py --backend mjx --batches 64,256 --out bench_out/rl_env_mjx
 """
 
 from __future__ import annotations
@@ -46,11 +47,14 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--scenes", type=int, default=8, help="generated scenes of each kind in the pool")
     ap.add_argument("--substeps", type=int, default=30)
+    ap.add_argument("--backend", default="kinematic", help="kinematic | mjx")
     ap.add_argument("--episodes", type=int, default=128, help="episodes of each scripted policy for the baseline rows (0: skip)")
     args = ap.parse_args()
 
     n = args.scenes
-    env = make_env({"substeps": args.substeps, "scenes": {"generated": {"cuboid_forest": n, "shelves": n, "flying_cuboids": n}}})
+    env = make_env(
+        {"backend": args.backend, "substeps": args.substeps, "scenes": {"generated": {"cuboid_forest": n, "shelves": n, "flying_cuboids": n}}}
+    )
     cfg = env.cfg
     rows = []
     for b in [int(x) for x in args.batches.split(",")]:
@@ -70,7 +74,7 @@ def main() -> None:
         a0 = jnp.zeros((b, env.action_size))
         params, _ = jax.vmap(env.targets, in_axes=(0, 0, None))(ep, a0, jnp.ones((), jnp.int32))
 
-        substeps = jax.jit(jax.vmap(lambda p, e: env.substeps(e, p)[1]))  # the fabric alone
+        substeps = jax.jit(jax.vmap(lambda p, e: env.substeps(e, p)[1]))  # the fabric and the arm following it
         qs = substeps(params, ep)
         checker = jax.jit(jax.vmap(lambda s, q: state_clearances(env.robot, s, q)))
         observe = jax.jit(jax.vmap(env.observe))
@@ -109,6 +113,13 @@ def main() -> None:
                 "unique_cells": float(final["unique_cells"].mean()),
             }
         )
+        if "tracking_error" in final:  # mjx: MJX's contacts and how closely the arm tracked the fabric
+            seen = jnp.where(alive, metrics["mjx_contacts"] > 0, False).any(axis=1)
+            baselines[-1].update(
+                mjx_contact_pct=100 * float(seen.mean()),
+                max_tracking_error=float(jnp.where(alive, metrics["tracking_error"], 0.0).max()),
+                median_tracking_error=float(jnp.median(metrics["tracking_error"][alive])),
+            )
         print(json.dumps(baselines[-1]), flush=True)
 
     out = Path(args.out)
@@ -130,7 +141,7 @@ def main() -> None:
         f"backend {cfg.backend}, {cfg.substeps} fabric substeps per policy step, pool of {env.pool.size} generated scenes "
         f"(capacity {env.pool.scene.capacity}), {meta['cpus']} CPUs",
         "",
-        "| envs | env steps/s | ms per step | compile s | fabric substeps ms | checker ms | observations ms |",
+        "| envs | env steps/s | ms per step | compile s | substeps (fabric + arm) ms | checker ms | observations ms |",
         "|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
@@ -152,6 +163,12 @@ def main() -> None:
                 f"| {r['policy']} | {r['success_pct']:.1f} | {r['collision_pct']:.1f} | {r['within_0.08_pct']:.1f} | "
                 f"{r['final_keypoint_distance']:.3f} | {r['unique_cells']:.1f} |"
             )
+        if "max_tracking_error" in baselines[0]:
+            lines += ["", "| policy | episodes with MJX contacts % | median / max tracking error (rad) |", "|---|---:|---:|"]
+            lines += [
+                f"| {r['policy']} | {r['mjx_contact_pct']:.1f} | {r['median_tracking_error']:.4f} / {r['max_tracking_error']:.4f} |"
+                for r in baselines
+            ]
     (out / "rl_env.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

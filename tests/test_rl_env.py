@@ -209,8 +209,8 @@ def test_bad_config_fails_before_any_jit(env):
         env_config({"substeps": 0})
     with pytest.raises(ValueError, match="env.backend"):
         env_config({"backend": "isaac"})
-    with pytest.raises(ValueError, match="not available yet"):
-        env_config({"backend": "mjx"})
+    with pytest.raises(ValueError, match="env.sim_steps"):
+        env_config({"backend": "mjx", "sim_steps": 0})
     with pytest.raises(ValueError, match="generated kinds"):
         env_config({"scenes": {"generated": {"forest": 2}}})
     with pytest.raises(ValueError, match="no scene"):

@@ -10,7 +10,6 @@ import dataclasses
 from typing import Any
 
 BACKENDS = ("kinematic", "mjx")
-BUILT = ("kinematic",)  # mjx: issue 13, not built yet
 THESIS_BOUNDS = ((-0.75, -1.0, -0.1), (1.5, 1.0, 1.25))  # thesis eq. 3.15: the BPS grid's corners (m)
 GENERATED = ("cuboid_forest", "shelves", "flying_cuboids")
 
@@ -32,6 +31,9 @@ class ScenesConfig:
 @dataclasses.dataclass(frozen=True)
 class EnvConfig:
     backend: str = "kinematic"  # kinematic: the arm follows the fabric exactly | mjx: MuJoCo MJX tracks it (eq. 3.12)
+    sim_steps: int = 2  # mjx: physics steps per fabric step (120 Hz physics under the 60 Hz fabric)
+    kp: float = 400.0  # mjx: PD gains of eq. 3.12's tracking controller (1/s^2, 1/s)
+    kd: float = 40.0
     substeps: int = 30  # fabric steps per policy step (60 Hz fabric, 2 Hz policy)
     fabric_dt: float = 1.0 / 60.0
     episode_s: float = 20.0
@@ -127,14 +129,12 @@ def env_config(cfg: dict[str, Any] | None = None) -> EnvConfig:
             out[key] = str(cfg[key])
     if out.get("backend", "kinematic") not in BACKENDS:
         raise ValueError(f"env.backend must be one of {BACKENDS}, got '{out['backend']}'")
-    if out.get("backend", "kinematic") not in BUILT:
-        raise ValueError(f"env.backend '{out['backend']}' is not available yet (built: {', '.join(BUILT)})")
     if out.get("integrator", "second_order") not in ("euler", "second_order"):
         raise ValueError(f"env.integrator must be 'euler' or 'second_order', got '{out['integrator']}'")
-    for key in ("substeps", "bps_cells", "map_cells"):
+    for key in ("substeps", "bps_cells", "map_cells", "sim_steps"):
         if key in cfg:
             out[key] = _positive(f"env.{key}", cfg[key], integer=True)
-    for key in ("fabric_dt", "episode_s", "ee_translation", "ee_rotation", "success_distance", "bps_clip"):
+    for key in ("fabric_dt", "episode_s", "ee_translation", "ee_rotation", "success_distance", "bps_clip", "kp", "kd"):
         if key in cfg:
             out[key] = float(_positive(f"env.{key}", cfg[key]))
     for key in ("switch_threshold", "sparse_reward", "intrinsic_weight", "collision_penalty"):

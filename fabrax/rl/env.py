@@ -18,8 +18,12 @@ fabric step, ends the episode with `-collision_penalty`. The curriculum stage is
 Episodes end on success or collision; the time limit (`EnvConfig.episode_steps`) is brax's
 `EpisodeWrapper`'s, so that PPO bootstraps it as a truncation.
 
-Backends: "kinematic" (the arm is the fabric's state). Everything an episode carries lives in
-`state.pipeline_state` (an `Episode`), so brax's auto-reset restores it whole.
+Backends: "kinematic" (the arm is the fabric's state) and "mjx" (MuJoCo MJX steps the arm's
+dynamics, tracking the fabric with eq. 3.12's PD + inverse-dynamics controller; `fabrax.rl.mjx_sim`).
+Both judge collisions with the same exact checker on the arm's own configuration at every fabric
+step; the mjx backend also reports MJX's contacts at the step's closest approach and the tracking
+error. Everything an episode carries lives in `state.pipeline_state` (an `Episode`), so brax's
+auto-reset restores it whole.
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ from fabrax.config import load_fabric, load_robot
 from fabrax.fabrics import ArmFabric, Params
 from fabrax.problems.clearance import state_clearances
 from fabrax.problems.mbm import load_mbm
-from fabrax.rl.config import BUILT, EnvConfig, env_config
+from fabrax.rl.config import EnvConfig, env_config
 from fabrax.rl.observations import cell_centres, cell_index, intrinsic_reward, keypoint_distance, point_distances
 from fabrax.rl.scenes import ScenePool, build_pool, sample_episode
 from fabrax.robot.kinematics import frame_pose, keypoints, points, sphere_centers
@@ -42,11 +46,12 @@ from fabrax.rollout.rollout import integrate
 from fabrax.scene import Scene
 
 METRICS = ("success", "collision", "keypoint_distance", "unique_cells", "r_sparse", "r_intrinsic", "switch")
+MJX_METRICS = ("mjx_contacts", "mjx_penetration", "tracking_error")  # the mjx backend's extra metrics
 
 
 @struct.dataclass
 class Episode:
-    q: jax.Array  # robot joint positions (the fabric's in the kinematic backend)
+    q: jax.Array  # the arm's joint positions (the fabric's in the kinematic backend, MJX's in mjx)
     qd: jax.Array
     fabric_q: jax.Array  # q_e, qd_e, qdd_e: the fabric's state
     fabric_qd: jax.Array
@@ -67,13 +72,19 @@ class FabricGuideEnv(Env):
     """brax `Env`: reset(rng) -> State, step(state, action) -> State; pure, jit- and vmap-able."""
 
     def __init__(self, fabric: ArmFabric, params: Params, pool: ScenePool, cfg: EnvConfig):
-        if cfg.backend not in BUILT:
-            raise ValueError(f"env.backend '{cfg.backend}' is not available yet (built: {', '.join(BUILT)})")
         self.fabric, self.params, self.pool, self.cfg = fabric, params, pool, cfg
         self.robot = fabric.robot
         self._hand = self.robot.frame_point(fabric.goal_frame)
         self.centres = cell_centres(cfg.map_cells, *cfg.bounds)
         self._modes = jnp.asarray(cfg.scenes.modes, jnp.float32)
+        self.metric_names = METRICS + (MJX_METRICS if cfg.backend == "mjx" else ())
+        self.sim = None
+        if cfg.backend == "mjx":
+            from fabrax.rl.mjx_sim import MJXArm
+
+            s = pool.scene
+            capacity = {"cuboids": s.cuboids.center.shape[1], "cylinders": s.cylinders.center.shape[1], "spheres": s.spheres.center.shape[1]}
+            self.sim = MJXArm(self.robot, capacity, cfg.fabric_dt, cfg.sim_steps, cfg.kp, cfg.kd)
 
     # -- brax Env properties --------------------------------------------------------------
     @property
@@ -122,7 +133,7 @@ class FabricGuideEnv(Env):
             switch=jnp.zeros((), bool),
             t=jnp.zeros((), jnp.int32),
         )
-        zeros = {k: jnp.zeros(()) for k in METRICS}
+        zeros = {k: jnp.zeros(()) for k in self.metric_names}
         obs = self.observe(ep, self.pool.bps[i])
         zeros["keypoint_distance"] = keypoint_distance(obs["hand_keypoints"].reshape(8, 3), ep.goal_keypoints)
         return State(ep, obs, jnp.zeros(()), jnp.zeros(()), zeros, {"stage": jnp.ones((), jnp.int32)})
@@ -131,7 +142,7 @@ class FabricGuideEnv(Env):
         """The fabric parameters an action commands (see the module docstring) and the latched switch."""
         cfg, robot = self.cfg, self.robot
         a = jnp.clip(action, -1.0, 1.0)
-        hand = frame_pose(robot, ep.fabric_q, self.fabric.goal_frame)
+        hand = frame_pose(robot, ep.q, self.fabric.goal_frame)  # the arm's hand (the fabric's in the kinematic backend)
         pos = hand.translation() + cfg.ee_translation * a[:3]
         rot = jaxlie.SO3.exp(cfg.ee_rotation * a[3:6]) @ hand.rotation()
         posture = 0.5 * (robot.lower + robot.upper) + 0.5 * (robot.upper - robot.lower) * a[6 : 6 + robot.dof]
@@ -142,16 +153,23 @@ class FabricGuideEnv(Env):
         return params, switch
 
     def substeps(self, ep: Episode, params: Params):
-        """The fabric's `substeps` steps under `params` from the episode's fabric state: the final
-        (q, qd, qdd) and every substep's q (substeps, n)."""
+        """The fabric's `substeps` steps under `params` from the episode's fabric state, and the arm
+        following it: ((fabric q, qd, qdd), (arm q, qd)) at the end, and the arm's q at every
+        substep (substeps, n). In the kinematic backend the arm is the fabric."""
         cfg = self.cfg
+        model = None if self.sim is None else self.sim.with_scene(self.sim.model, ep.scene)
 
         def substep(carry, _):
-            q, qd, _ = carry
-            q, qd, qdd, _ = integrate(self.fabric, params, ep.scene, q, qd, cfg.fabric_dt, cfg.integrator)
-            return (q, qd, qdd), q
+            (fq, fqd, _), (q, qd) = carry
+            nq, nqd, qdd, _ = integrate(self.fabric, params, ep.scene, fq, fqd, cfg.fabric_dt, cfg.integrator)
+            if model is None:
+                q, qd = nq, nqd
+            else:
+                q, qd, _ = self.sim.track(model, q, qd, fq, fqd, qdd)
+            return ((nq, nqd, qdd), (q, qd)), q
 
-        return jax.lax.scan(substep, (ep.fabric_q, ep.fabric_qd, ep.fabric_qdd), None, length=cfg.substeps)
+        start = ((ep.fabric_q, ep.fabric_qd, ep.fabric_qdd), (ep.q, ep.qd))
+        return jax.lax.scan(substep, start, None, length=cfg.substeps)
 
     def step(self, state: State, action: jax.Array) -> State:
         return self.step_with_path(state, action)[0]
@@ -163,7 +181,7 @@ class FabricGuideEnv(Env):
         stage = state.info["stage"]
         params, switch = self.targets(ep, action, stage)
 
-        (q, qd, qdd), qs = self.substeps(ep, params)
+        ((fq, fqd, fqdd), (q, qd)), qs = self.substeps(ep, params)
         env_clear, self_clear, _ = state_clearances(robot, ep.scene, qs)  # the exact checker on every fabric step
         collision = jnp.any(env_clear < 0.0) | jnp.any(self_clear < 0.0)
         hand = jax.vmap(lambda x: points(robot, x, self._hand[0][None], self._hand[1][None])[0])(qs)
@@ -172,11 +190,11 @@ class FabricGuideEnv(Env):
         counts = jnp.where(visited, jnp.minimum(ep.counts, 254) + 1, ep.counts).astype(jnp.uint8)
         r_int = intrinsic_reward(counts, visited, self.centres, ep.goal_pos)
 
-        ep = ep.replace(q=q, qd=qd, fabric_q=q, fabric_qd=qd, fabric_qdd=qdd, counts=counts, switch=switch, t=ep.t + 1)
+        ep = ep.replace(q=q, qd=qd, fabric_q=fq, fabric_qd=fqd, fabric_qdd=fqdd, counts=counts, switch=switch, t=ep.t + 1)
         obs = self.observe(ep, state.obs["bps"])
         dist = keypoint_distance(obs["hand_keypoints"].reshape(8, 3), ep.goal_keypoints)
         success = (dist < cfg.success_distance) & (stage >= 2)
-        r_sparse = jnp.where(success, cfg.sparse_reward, 0.0)
+        r_sparse = jnp.where(success, jnp.float32(cfg.sparse_reward), jnp.float32(0.0))  # strong float32, as at reset: no retrace
         reward = r_sparse + cfg.intrinsic_weight * r_int - jnp.where(collision, cfg.collision_penalty, 0.0)
         done = success | collision
         metrics = {
@@ -188,6 +206,10 @@ class FabricGuideEnv(Env):
             "r_intrinsic": r_int,
             "switch": switch.astype(jnp.float32),
         }
+        if self.sim is not None:  # MJX's contacts where the checker found the least clearance
+            worst = qs[jnp.argmin(env_clear)]
+            n_contacts, depth = self.sim.contacts(self.sim.with_scene(self.sim.model, ep.scene), worst)
+            metrics.update(mjx_contacts=n_contacts.astype(jnp.float32), mjx_penetration=depth, tracking_error=jnp.max(jnp.abs(q - fq)))
         new = state.replace(pipeline_state=ep, obs=obs, reward=reward, done=done.astype(jnp.float32), metrics=metrics)
         return new, qs, params
 

@@ -57,6 +57,10 @@ class Robot:
     link_pair_groups_mask: jax.Array  # (LP, C)
     keypoint_frame: int = struct.field(pytree_node=False, default=0)  # joint frame that carries the keypoints
     keypoint_local: jax.Array | None = None  # (8, 3) corners of the end effector's bounding box in that frame
+    effort: jax.Array | None = None  # (n,) joint torque limits from the URDF (inf where none)
+    frame_mass: jax.Array | None = None  # (n+1,) mass rigidly carried by each joint frame (0 = base), from the URDF's <inertial>
+    frame_com: jax.Array | None = None  # (n+1, 3) its centre of mass in the frame
+    frame_inertia: jax.Array | None = None  # (n+1, 3, 3) its inertia about that centre, frame axes
 
     @property
     def dof(self) -> int:
@@ -100,6 +104,28 @@ def _ancestors(parent: np.ndarray) -> np.ndarray:
         out[k + 1] = out[p + 1]
         out[k + 1, k] = True
     return out
+
+
+def frame_inertials(tree: KinematicTree) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(mass, com, inertia) of the links each joint frame carries (frame 0 = base), combined by the
+    parallel-axis theorem: I = sum_l R_l I_l R_l^T + m_l (|d_l|^2 E - d_l d_l^T), d_l = c_l - c."""
+    n = tree.dof
+    mass, com, inertia = np.zeros(n + 1), np.zeros((n + 1, 3)), np.zeros((n + 1, 3, 3))
+    if tree.link_mass is None:
+        return mass, com, inertia
+    r, t = tree.link_offset[:, :3, :3], tree.link_offset[:, :3, 3]
+    c_frame = np.einsum("lij,lj->li", r, tree.link_com) + t
+    for f in range(n + 1):
+        links = np.flatnonzero((tree.link_frame + 1 == f) & (tree.link_mass > 0))
+        m = tree.link_mass[links]
+        if m.sum() <= 0:
+            continue
+        mass[f] = m.sum()
+        com[f] = (m[:, None] * c_frame[links]).sum(0) / mass[f]
+        for k, l in enumerate(links):
+            d = c_frame[l] - com[f]
+            inertia[f] += r[l] @ tree.link_inertia[l] @ r[l].T + m[k] * (d @ d * np.eye(3) - np.outer(d, d))
+    return mass, com, inertia
 
 
 def _rt(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -288,7 +314,12 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
     owner = np.asarray(owner)
     link_groups, link_group_mask = _groups([np.nonzero(owner == k)[0] for k in np.unique(owner)])
     kp_frame, kp_local = _keypoint_box(cfg.get("keypoints"), frame_names, frame_parent, frame_offset, link_names, s_link, s_frame, s_local, s_radius)
+    mass, com, inertia = frame_inertials(tree)
     return robot.replace(
+        effort=f32(tree.effort),
+        frame_mass=f32(mass),
+        frame_com=f32(com),
+        frame_inertia=f32(inertia),
         keypoint_frame=kp_frame,
         keypoint_local=f32(kp_local),
         pair_i=jnp.asarray(pi),

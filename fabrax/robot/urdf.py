@@ -46,12 +46,16 @@ class KinematicTree:
     lower: np.ndarray  # (n,)
     upper: np.ndarray  # (n,)
     velocity: np.ndarray  # (n,)
+    effort: np.ndarray  # (n,) torque (force) limits, inf where the URDF gives none
     link_names: tuple[str, ...]
     link_frame: np.ndarray  # (L,) frame index carrying the link, -1 = base
     link_offset: np.ndarray  # (L, 4, 4) frame -> link
     link_parent: np.ndarray  # (L,) parent link index, -1 = root
     collisions: tuple[CollisionGeometry, ...]
     held: dict  # joint name -> value for movable joints held fixed
+    link_mass: np.ndarray | None = None  # (L,) <inertial> mass, 0 where a link has none
+    link_com: np.ndarray | None = None  # (L, 3) centre of mass in the link frame
+    link_inertia: np.ndarray | None = None  # (L, 3, 3) inertia about the centre of mass, link-frame axes
 
     @property
     def dof(self) -> int:
@@ -190,7 +194,7 @@ def parse_urdf(path: str | Path, active_joints: list[str] | None = None, held: d
     if not order_ok:
         raise ValueError("active_joints must list every joint after the joints it hangs from")
 
-    lower, upper, velocity = [], [], []
+    lower, upper, velocity, effort = [], [], [], []
     for n in active_joints:
         lim = joints[n].limit
         if joints[n].type == "continuous" or lim is None or lim.lower is None or lim.upper is None:
@@ -200,6 +204,7 @@ def parse_urdf(path: str | Path, active_joints: list[str] | None = None, held: d
             lower.append(lim.lower)
             upper.append(lim.upper)
         velocity.append(lim.velocity if lim is not None and lim.velocity else np.inf)
+        effort.append(lim.effort if lim is not None and lim.effort else np.inf)
 
     collisions = []
     for link in robot.links:
@@ -216,6 +221,18 @@ def parse_urdf(path: str | Path, active_joints: list[str] | None = None, held: d
             elif g.sphere is not None:
                 collisions.append(CollisionGeometry(link.name, "sphere", origin, (float(g.sphere.radius),)))
 
+    mass, com, inertia = np.zeros(len(link_names)), np.zeros((len(link_names), 3)), np.zeros((len(link_names), 3, 3))
+    by_name = {link.name: link for link in robot.links}
+    for i, name in enumerate(link_names):
+        inertial = by_name[name].inertial
+        if inertial is None or not inertial.mass:
+            continue
+        o = inertial.origin if inertial.origin is not None else np.eye(4)
+        mass[i], com[i] = float(inertial.mass), o[:3, 3]
+        inertia[i] = o[:3, :3] @ np.asarray(inertial.inertia, float) @ o[:3, :3].T
+        if not (mass[i] > 0 and np.all(np.isfinite(inertia[i]))):
+            raise ValueError(f"{path.name}: link '{name}' has an invalid <inertial> (mass {mass[i]})")
+
     return KinematicTree(
         name=robot.name,
         joint_names=tuple(active_joints),
@@ -226,10 +243,14 @@ def parse_urdf(path: str | Path, active_joints: list[str] | None = None, held: d
         lower=np.array(lower),
         upper=np.array(upper),
         velocity=np.array(velocity),
+        effort=np.array(effort, float),
         link_names=tuple(link_names),
         link_frame=np.array([ref(f) for f in link_frame], dtype=np.int32),
         link_offset=np.stack(link_offset),
         link_parent=np.array(link_parent, dtype=np.int32),
         collisions=tuple(collisions),
         held=held,
+        link_mass=mass,
+        link_com=com,
+        link_inertia=inertia,
     )

@@ -97,6 +97,16 @@ class Viewer:
         """Scene, start pose and goal: a ghost arm for a joint goal, a frame for a pose goal; the
         camera frames the arm, its start and its goal from the side where no obstacle hides them."""
         self.nodes += draw_scene(self.server, problem.scene, "/scene")
+        self.frame_problem(problem)
+        self.arm.update(problem.start_q)
+        if problem.goal_q is not None:
+            self.ghost(problem.goal_q, "/goal")
+        if problem.goal_pose is not None:
+            pos, quat = problem.goal_pose
+            self.nodes.append(self.server.scene.add_frame("/goal_pose", axes_length=0.1, axes_radius=0.005, position=tuple(pos), wxyz=tuple(quat)))
+
+    def frame_problem(self, problem: Problem) -> None:
+        """Point the camera (new and connected clients) at the arm, its start and its goal (`camera_view`)."""
         hand = lambda q: np.asarray(frame_pose(self.robot, jnp.asarray(q, jnp.float32), self.frame).translation())  # noqa: E731
         targets = [np.array([0.0, 0.0, 0.3]), hand(problem.start_q)]
         targets.append(hand(problem.goal_q) if problem.goal_q is not None else np.asarray(problem.goal_pose[0], float))
@@ -104,12 +114,6 @@ class Viewer:
         self.server.initial_camera.position, self.server.initial_camera.look_at = position, look_at
         for client in self.server.get_clients().values():
             client.camera.position, client.camera.look_at = position, look_at
-        self.arm.update(problem.start_q)
-        if problem.goal_q is not None:
-            self.ghost(problem.goal_q, "/goal")
-        if problem.goal_pose is not None:
-            pos, quat = problem.goal_pose
-            self.nodes.append(self.server.scene.add_frame("/goal_pose", axes_length=0.1, axes_radius=0.005, position=tuple(pos), wxyz=tuple(quat)))
 
     def ee_line(self, q: np.ndarray, name: str, color) -> None:
         pos = np.asarray(frame_path(self.robot, jnp.asarray(q, jnp.float32), self.frame)[0])
@@ -201,7 +205,8 @@ def live(viewer: Viewer, fabric_name: str = "panda", dt: float = 0.01, problem: 
         movers.append(c)
     handles = draw_scene(viewer.server, data, "/obstacles_geom")
     viewer.nodes += [gizmo, *movers, *handles]
-    rate = viewer.server.gui.add_markdown("starting ...")
+    viewer.frame_problem(problem)
+    rate = viewer.server.gui.add_markdown("compiling the fabric step (the first call takes about a minute on a laptop CPU) ...")
     viewer.nodes.append(rate)
 
     def frame(p, s, q, qd):  # `substeps` fabric steps per drawn frame, in one scan
