@@ -69,9 +69,8 @@ def to_mjcf(robot: Robot, capacity: dict[str, int] | None = None, timestep: floa
         kind = "hinge" if robot.joint_revolute[k] else "slide"
         limited = np.isfinite(lower[k]) and np.isfinite(upper[k])
         rng = f' range="{lower[k]:.9g} {upper[k]:.9g}"' if limited else ""
-        out.append(
-            f'{ind}  <joint name="{robot.joint_names[k]}" type="{kind}" axis="{_v(axis[k])}" limited="{str(limited).lower()}"{rng} armature="{armature:.9g}"/>'
-        )
+        joint = f'name="{robot.joint_names[k]}" type="{kind}" axis="{_v(axis[k])}" limited="{str(limited).lower()}"{rng} armature="{armature:.9g}"'
+        out.append(f"{ind}  <joint {joint}/>")
         out += geoms(f, ind + "  ")
         for c in children[f]:
             out += body(c, depth + 1)

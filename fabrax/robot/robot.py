@@ -122,9 +122,9 @@ def frame_inertials(tree: KinematicTree) -> tuple[np.ndarray, np.ndarray, np.nda
             continue
         mass[f] = m.sum()
         com[f] = (m[:, None] * c_frame[links]).sum(0) / mass[f]
-        for k, l in enumerate(links):
-            d = c_frame[l] - com[f]
-            inertia[f] += r[l] @ tree.link_inertia[l] @ r[l].T + m[k] * (d @ d * np.eye(3) - np.outer(d, d))
+        for k, li in enumerate(links):
+            d = c_frame[li] - com[f]
+            inertia[f] += r[li] @ tree.link_inertia[li] @ r[li].T + m[k] * (d @ d * np.eye(3) - np.outer(d, d))
     return mass, com, inertia
 
 
