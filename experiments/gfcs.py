@@ -132,7 +132,7 @@ def reactive(cfg: dict, robot, fabric, params, problems, rows) -> dict:
     by_name = {p.name: p for p in problems}
     method = cfg["reactive"]["method"]
     rng = np.random.default_rng(cfg["seed"])
-    out = []
+    out, skipped = [], []
     for row in rows:
         if row["method"] != method or not row.get("success") or row["problem"] not in by_name:
             continue  # another method's, a failed one, or another class's (a saved multi-class run)
@@ -143,7 +143,8 @@ def reactive(cfg: dict, robot, fabric, params, problems, rows) -> dict:
         q_old = np.asarray(old.q[: int(old.length)])
         try:
             new = blocking_cuboids(robot, q_old, p.start_q, p.goal_q, rng, n=cfg["reactive"]["n_obstacles"])
-        except ValueError:
+        except ValueError as e:  # no blocking cuboid fits between the path and the start and goal
+            skipped.append({"problem": p.name, "reason": str(e)})
             continue
         scene = with_obstacles(p.scene, new)
         blocked = check_path(robot, scene, q_old).collision
@@ -156,12 +157,13 @@ def reactive(cfg: dict, robot, fabric, params, problems, rows) -> dict:
     rate = lambda k: 100.0 * sum(r[k] for r in out) / n if n else float("nan")  # noqa: E731
     summary = {
         "n": n,
+        "skipped": len(skipped),
         "old_path_blocked_pct": rate("old_path_blocked"),
         "collision_free_pct": rate("collision_free"),
         "reached_pct": rate("reached"),
         "success_pct": rate("success"),
     }
-    return {"summary": summary, "rows": out}
+    return {"summary": summary, "rows": out, "skipped": skipped}
 
 
 if __name__ == "__main__":

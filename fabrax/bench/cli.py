@@ -88,8 +88,7 @@ def make_method(cfg: dict, robot):
             try:
                 learned = dict(zip(("learner", "selfsup", "encoding"), load_run(m["run"], robot, gfcs_cfg.n_commands)))
             except (FileNotFoundError, ValueError) as e:
-                message = " ".join(str(e).split("\nConfig search path")[0].split())  # one line, without hydra's search path
-        raise SystemExit(f"fabrax bench: {message}") from None
+                raise SystemExit(f"fabrax bench: {e}") from None
         return GFCSMethod(fabric, params, gfcs_cfg, m["name"], tuple(m["report"]), cfg["seed"], **learned)
     if kind == "ompl":
         return OMPLMethod(dt=cfg["dt"], **m)
