@@ -25,3 +25,20 @@ def shared_data():
     if path is None:
         pytest.skip("FABRAX_DATA is not set to the shared data folder (../shared/data)")
     return path
+
+
+@pytest.fixture(scope="session")
+def box_on_hand():
+    """A function (env, state) -> state with a 0.2 m cube in the first cuboid slot, centred on the hand."""
+    import jax.numpy as jnp
+
+    from fabrax.robot.kinematics import frame_pose
+
+    def place(env, state):
+        ep = state.pipeline_state
+        hand = frame_pose(env.robot, ep.q, env.fabric.goal_frame).translation()
+        c = ep.scene.cuboids
+        box = c.replace(center=c.center.at[0].set(hand), half_extents=c.half_extents.at[0].set(jnp.full(3, 0.1)), mask=c.mask.at[0].set(True))
+        return state.replace(pipeline_state=ep.replace(scene=ep.scene.replace(cuboids=box)))
+
+    return place

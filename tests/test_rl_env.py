@@ -170,14 +170,9 @@ def test_success_at_the_goal_in_stage_2(env, fns):
     assert stage1.metrics["success"] == 0.0 and stage1.done == 0.0  # no sparse reward in stage 1
 
 
-def test_a_collision_ends_the_episode_with_the_penalty(env, fns):
+def test_a_collision_ends_the_episode_with_the_penalty(env, fns, box_on_hand):
     reset, step = fns
-    s = reset(jax.random.PRNGKey(9))
-    ep = s.pipeline_state
-    hand = frame_pose(env.robot, ep.q, env.fabric.goal_frame).translation()
-    c = ep.scene.cuboids
-    box = c.replace(center=c.center.at[0].set(hand), half_extents=c.half_extents.at[0].set(jnp.full(3, 0.1)), mask=c.mask.at[0].set(True))
-    s = s.replace(pipeline_state=ep.replace(scene=ep.scene.replace(cuboids=box)))
+    s = box_on_hand(env, reset(jax.random.PRNGKey(9)))
     out = step(s, jnp.zeros(env.action_size))
     assert out.metrics["collision"] == 1.0 and out.done == 1.0
     assert float(out.reward) <= -env.cfg.collision_penalty + env.cfg.intrinsic_weight * 10.0

@@ -10,7 +10,7 @@ import pytest
 
 from fabrax.problems.clearance import state_clearances
 from fabrax.rl import make_env
-from fabrax.robot.kinematics import frame_pose, sphere_centers
+from fabrax.robot.kinematics import sphere_centers
 from fabrax.robot.mjcf import to_mjcf
 
 CFG = {"substeps": 5, "scenes": {"generated": {"cuboid_forest": 1, "shelves": 1, "flying_cuboids": 1}, "configs_per_scene": 4}}
@@ -59,16 +59,11 @@ def test_backends_follow_the_same_scripted_actions(envs):
     assert verdicts["kinematic"] == verdicts["mjx"]
 
 
-def test_mjx_contacts_agree_with_the_checker(envs):
+def test_mjx_contacts_agree_with_the_checker(envs, box_on_hand):
     """A box placed on the hand: the checker ends the episode, and MJX sees penetrating contacts as
     deep as the checker's deepest penetration."""
     env, reset, step = envs["mjx"]
-    s = reset(jax.random.PRNGKey(9))
-    ep = s.pipeline_state
-    hand = frame_pose(env.robot, ep.q, env.fabric.goal_frame).translation()
-    c = ep.scene.cuboids
-    box = c.replace(center=c.center.at[0].set(hand), half_extents=c.half_extents.at[0].set(jnp.full(3, 0.1)), mask=c.mask.at[0].set(True))
-    s = s.replace(pipeline_state=ep.replace(scene=ep.scene.replace(cuboids=box)))
+    s = box_on_hand(env, reset(jax.random.PRNGKey(9)))
     out, qs, _ = jax.jit(env.step_with_path)(s, jnp.zeros(env.action_size))
     assert out.metrics["collision"] == 1.0 and out.done == 1.0
     env_clear, _, _ = state_clearances(env.robot, out.pipeline_state.scene, qs)
