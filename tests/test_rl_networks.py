@@ -1,0 +1,51 @@
+"""The guide's network (thesis Table 3.4): the patch-matmul 3-D convolution is lax's convolution,
+value and gradient; the network takes the env's observation dict."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from fabrax.rl.networks import Conv3D, GuideNetwork
+
+LAYERS = [((2, 16, 16, 16, 3), 4, 2), ((2, 7, 7, 7, 8), 3, 2), ((1, 9, 9, 9, 4), 3, 1), ((1, 3, 3, 3, 16), 2, 1)]  # Table 3.4's shapes
+
+
+@pytest.mark.parametrize("shape, kernel, stride", LAYERS)
+def test_conv3d_is_lax_convolution_value_and_gradient(shape, kernel, stride):
+    x = jax.random.normal(jax.random.PRNGKey(0), shape)
+    conv = Conv3D(5, kernel, stride)
+    params = conv.init(jax.random.PRNGKey(1), x)
+    w, b = params["params"]["kernel"], params["params"]["bias"] + 0.3
+
+    def reference(w, x):
+        return jax.lax.conv_general_dilated(x, w, (stride,) * 3, "VALID", dimension_numbers=("NDHWC", "DHWIO", "NDHWC")) + b
+
+    def ours(w, x):
+        return conv.apply({"params": {"kernel": w, "bias": b}}, x)
+
+    np.testing.assert_allclose(jax.jit(ours)(w, x), jax.jit(reference)(w, x), rtol=1e-4, atol=1e-4)
+    grad = lambda f: jax.jit(jax.grad(lambda w, x: jnp.sum(jnp.sin(f(w, x))), argnums=(0, 1)))  # noqa: E731
+    for a, r in zip(grad(ours)(w, x), grad(reference)(w, x)):
+        np.testing.assert_allclose(a, r, rtol=1e-3, atol=1e-3)
+
+
+def test_guide_network_on_env_observations(panda):
+    """Observations of the env's shapes (`FabricGuideEnv.observation_size`, without building a scene pool)."""
+    from types import SimpleNamespace
+
+    from fabrax.rl import FabricGuideEnv, env_config
+
+    shapes = FabricGuideEnv.observation_size.fget(SimpleNamespace(cfg=env_config({}), robot=panda))
+    keys = jax.random.split(jax.random.PRNGKey(0), len(shapes))
+    obs = {k: jax.random.normal(key, (3, *shape)) for key, (k, shape) in zip(keys, sorted(shapes.items()))}
+    action_size = 6 + panda.dof + 1
+    for variant in ("conv", "mlp"):
+        net = GuideNetwork(2 * action_size, variant)
+        params = jax.jit(net.init)(jax.random.PRNGKey(1), obs)
+        out = jax.jit(net.apply)(params, obs)
+        assert out.shape == (3, 2 * action_size) and bool(jnp.all(jnp.isfinite(out)))
+        convs = [k for k in jax.tree_util.tree_flatten_with_path(params)[0] if "Conv3D" in jax.tree_util.keystr(k[0])]
+        assert (len(convs) == 12) == (variant == "conv")  # 2 heads x 3 layers x (kernel, bias)
+    with pytest.raises(ValueError, match="variant"):
+        GuideNetwork(4, "cnn").init(jax.random.PRNGKey(1), obs)
