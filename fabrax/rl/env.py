@@ -152,12 +152,17 @@ class FabricGuideEnv(Env):
         params = self.fabric.with_pose_goal(self.params, pos, quat, posture=posture, posture_weight=jnp.where(switch, 0.0, 1.0))
         return params, switch
 
-    def substeps(self, ep: Episode, params: Params):
+    def sim_model(self, ep: Episode):
+        """The MJX model holding the episode's scene (None in the kinematic backend)."""
+        return None if self.sim is None else self.sim.with_scene(self.sim.model, ep.scene)
+
+    def substeps(self, ep: Episode, params: Params, model=None):
         """The fabric's `substeps` steps under `params` from the episode's fabric state, and the arm
         following it: ((fabric q, qd, qdd), (arm q, qd)) at the end, and the arm's q at every
-        substep (substeps, n). In the kinematic backend the arm is the fabric."""
+        substep (substeps, n). In the kinematic backend the arm is the fabric; `model` is
+        `sim_model(ep)` (built here when not given)."""
         cfg = self.cfg
-        model = None if self.sim is None else self.sim.with_scene(self.sim.model, ep.scene)
+        model = self.sim_model(ep) if model is None else model
 
         def substep(carry, _):
             (fq, fqd, _), (q, qd) = carry
@@ -181,7 +186,8 @@ class FabricGuideEnv(Env):
         stage = state.info["stage"]
         params, switch = self.targets(ep, action, stage)
 
-        ((fq, fqd, fqdd), (q, qd)), qs = self.substeps(ep, params)
+        model = self.sim_model(ep)
+        ((fq, fqd, fqdd), (q, qd)), qs = self.substeps(ep, params, model)
         env_clear, self_clear, _ = state_clearances(robot, ep.scene, qs)  # the exact checker on every fabric step
         collision = jnp.any(env_clear < 0.0) | jnp.any(self_clear < 0.0)
         hand = jax.vmap(lambda x: points(robot, x, self._hand[0][None], self._hand[1][None])[0])(qs)
@@ -208,7 +214,7 @@ class FabricGuideEnv(Env):
         }
         if self.sim is not None:  # MJX's contacts where the checker found the least clearance
             worst = qs[jnp.argmin(env_clear)]
-            n_contacts, depth = self.sim.contacts(self.sim.with_scene(self.sim.model, ep.scene), worst)
+            n_contacts, depth = self.sim.contacts(model, worst)
             metrics.update(mjx_contacts=n_contacts.astype(jnp.float32), mjx_penetration=depth, tracking_error=jnp.max(jnp.abs(q - fq)))
         new = state.replace(pipeline_state=ep, obs=obs, reward=reward, done=done.astype(jnp.float32), metrics=metrics)
         return new, qs, params

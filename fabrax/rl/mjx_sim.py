@@ -3,7 +3,8 @@ controller tracks the fabric (thesis eq. 3.12),
 
     tau = ID(q, qd, qdd_e + K_p (q_e - q) + K_d (qd_e - qd)),   clipped to the URDF's effort limits,
 
-where ID is MuJoCo's inverse dynamics (`mjx.inverse`: M(q) a + C(q, qd) qd + g(q)) and (q_e, qd_e,
+where ID is MuJoCo's inverse dynamics (M(q) a + C(q, qd) qd + g(q), what `mjx.inverse` computes
+without constraints; one position/velocity pass per physics step serves it and the step) and (q_e, qd_e,
 qdd_e) is the fabric's state, integrated on its own (the fabric is the reference generator). Within
 one fabric step of dt the reference follows the fabric's own second-order integration,
 q_e(s) = q_e + qd_e s + qdd_e s^2 / 2, sampled at each of `sim_steps` physics steps.
@@ -94,9 +95,12 @@ class MJXArm:
             target_q = ref_q + ref_qd * s + 0.5 * ref_qdd * s * s
             target_qd = ref_qd + ref_qdd * s
             acc = ref_qdd + self.kp * (target_q - q) + self.kd * (target_qd - qd)
-            d = mjx.inverse(model, data.replace(qpos=q, qvel=qd, qacc=acc))
-            tau = jnp.clip(d.qfrc_inverse, -self.effort, self.effort)
-            d = mjx.step(model, data.replace(qpos=q, qvel=qd, qfrc_applied=tau))
+            # one position/velocity pass serves both the inverse dynamics and the forward step
+            d = mjx.fwd_velocity(model, mjx.fwd_position(model, data.replace(qpos=q, qvel=qd)))
+            tau = d.qfrc_bias + mjx.mul_m(model, d, acc) - d.qfrc_passive  # mjx.inverse without constraints
+            tau = jnp.clip(tau, -self.effort, self.effort)
+            d = mjx.fwd_acceleration(model, d.replace(qfrc_applied=tau))
+            d = mjx.euler(model, d.replace(qacc=d.qacc_smooth))  # mjx.step's integration (no constraint forces)
             return (d.qpos, d.qvel, tau), None
 
         (q, qd, tau), _ = jax.lax.scan(one, (q, qd, jnp.zeros_like(q)), jnp.arange(self.sim_steps, dtype=q.dtype))

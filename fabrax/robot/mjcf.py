@@ -10,8 +10,8 @@ them per scene.
 
 from __future__ import annotations
 
+import jaxlie
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from fabrax.robot.robot import Robot
 
@@ -24,8 +24,7 @@ def _v(a) -> str:
 
 
 def _quat(r: np.ndarray) -> str:
-    x, y, z, w = Rotation.from_matrix(np.asarray(r, float)).as_quat()
-    return _v([w, x, y, z])
+    return _v(np.asarray(jaxlie.SO3.from_matrix(np.asarray(r, float)).wxyz))
 
 
 def obstacle_geom_names(capacity: dict[str, int]) -> dict[str, list[str]]:
