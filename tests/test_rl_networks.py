@@ -49,3 +49,42 @@ def test_guide_network_on_env_observations(panda):
         assert (len(convs) == 12) == (variant == "conv")  # 2 heads x 3 layers x (kernel, bias)
     with pytest.raises(ValueError, match="variant"):
         GuideNetwork(4, "cnn").init(jax.random.PRNGKey(1), obs)
+
+
+def _dense(n_in: int, n_out: int) -> int:
+    return n_in * n_out + n_out
+
+
+def _head(layers, cells: int, channels: int) -> tuple[int, int]:
+    """Parameters and flattened output size of a Table 3.4 conv head, by hand."""
+    params = 0
+    for features, kernel, stride in layers:
+        params += kernel**3 * channels * features + features
+        cells, channels = (cells - kernel) // stride + 1, features
+    return params, cells**3 * channels
+
+
+@pytest.mark.parametrize("variant", ["conv", "mlp"])
+def test_ppo_factory_shapes_and_parameter_counts_match_table_3_4(panda, variant):
+    from types import SimpleNamespace
+
+    from fabrax.rl import FabricGuideEnv, env_config
+    from fabrax.rl.networks import BPS_HEAD, MAP_HEAD, make_guide_networks, ppo_observation
+
+    shapes = FabricGuideEnv.observation_size.fget(SimpleNamespace(cfg=env_config({}), robot=panda))
+    sizes = {k: tuple(v) for k, v in ppo_observation(shapes).items()}
+    action = 6 + panda.dof + 1
+    nets = make_guide_networks(sizes, action, variant=variant)
+    proprio = 24 + panda.dof + 24 + 3 * panda.dof + panda.n_spheres + 1
+    bps_p, bps_out = _head(BPS_HEAD, 16, 3)
+    map_p, map_out = _head(MAP_HEAD, 20, 1)
+    assert (bps_out, map_out) == (256, 128)  # 2^3 x 32 and 2^3 x 16 voxels
+    width = 256 + (bps_out + map_out if variant == "conv" else 0)
+    trunk = _dense(proprio, 256) + _dense(width, 512) + _dense(512, 256) + _dense(256, 128) + (bps_p + map_p if variant == "conv" else 0)
+    obs = {k: jnp.ones((3, 2) + s) for k, s in sizes.items()}  # PPO applies its networks to (batch, unroll, ...)
+    for net, outputs in ((nets.policy_network, 2 * action), (nets.value_network, None)):
+        params = net.init(jax.random.PRNGKey(0))
+        n = sum(x.size for x in jax.tree.leaves(params))
+        assert n == trunk + _dense(128, outputs or 1)
+        out = net.apply(None, params, obs)
+        assert out.shape == ((3, 2, outputs) if outputs else (3, 2))

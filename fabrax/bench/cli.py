@@ -58,8 +58,30 @@ def load_problems(cfg: dict, robot) -> list:
 
         n = cfg["limit"] or 100
         seed = cfg["seed"] + (0 if cfg["split"] != "train" else 10_000)
-        return procedural.generate(robot, kind, cfg["classes"], n, seed)
+        problems = procedural.generate(robot, kind, cfg["classes"], n, seed, frame=cfg["frame"])
+        return [with_ik_goal(robot, p, cfg["frame"]) for p in problems] if cfg.get("ik_goals") else problems
     raise SystemExit(f"fabrax bench: problems must be mbm, mbm_like or mpinets_like, got '{kind}'")
+
+
+def with_ik_goal(robot, p, frame: str):
+    """A pose-goal problem with a joint goal added: the collision-free IK solution nearest its start
+    (seeded by the problem's name), for joint-space methods (GFCS, OMPL); the pose stays the goal
+    that pose and keypoint success are judged against. Without a solution the problem is marked
+    invalid (reported, not run)."""
+    import dataclasses
+    import zlib
+
+    import numpy as np
+
+    from fabrax.problems.generators import ik_configs
+
+    if p.goal_q is not None or p.goal_pose is None:
+        return p
+    rng = np.random.default_rng(zlib.crc32(p.name.encode()))
+    solutions = ik_configs(robot, p.scene, frame, *p.goal_pose, rng, seeds=128, margin=0.005, near=np.asarray(p.start_q))
+    if len(solutions) == 0:
+        return dataclasses.replace(p, valid=False, reason="no collision-free IK solution of the goal pose")
+    return dataclasses.replace(p, goal_q=solutions[0])
 
 
 def gfcs_config(method: dict, cfg: dict):
@@ -92,7 +114,39 @@ def make_method(cfg: dict, robot):
         return GFCSMethod(fabric, params, gfcs_cfg, m["name"], tuple(m["report"]), cfg["seed"], **learned)
     if kind == "ompl":
         return OMPLMethod(dt=cfg["dt"], **m)
+    if kind == "rl_guide":
+        return rl_guide_method(m, cfg, robot)
     raise SystemExit(f"fabrax bench: unknown method type '{kind}'")
+
+
+def rl_guide_method(m: dict, cfg: dict, robot):
+    """The RL guide from a checkpoint, or (scripted=switch) the env's pure fabric; its env settings
+    are the checkpoint's (robot, fabric, env), else the environment's defaults with this run's robot
+    and fabric."""
+    from fabrax.bench.methods import RLGuideMethod
+    from fabrax.rl.config import env_config
+    from fabrax.rl.env import FabricGuideEnv
+
+    if m.get("scripted") not in (None, "switch"):
+        raise SystemExit(f"fabrax bench: method.scripted must be null or switch, got {m['scripted']!r}")
+    if m.get("checkpoint") is None and m.get("scripted") is None:
+        raise SystemExit("fabrax bench: method=rl_guide needs method.checkpoint=<experiments/rl.py run directory> (or method.scripted=switch)")
+    act, env_settings, fabric_cfg = None, {}, {**cfg["fabric"], "goal_frame": cfg["frame"]}
+    if m.get("checkpoint") is not None:
+        from fabrax.rl.policy import load_guide
+
+        try:
+            guide = load_guide(m["checkpoint"])
+        except ValueError as e:
+            raise SystemExit(f"fabrax bench: {e}") from None
+        act, env_settings, fabric_cfg = guide.act, guide.settings["env"], guide.settings["fabric"]
+        trained = config.load_robot(guide.settings["robot"])
+        if trained.name != robot.name:
+            raise SystemExit(f"fabrax bench: the guide was trained on robot '{trained.name}'; run it with robot={trained.name}")
+    env_cfg = env_config(env_settings)
+    fabric, params = config.load_fabric(robot, fabric_cfg)
+    env = FabricGuideEnv(fabric, params, None, env_cfg)
+    return RLGuideMethod(env, act, m["name"], m.get("scripted"), int(m.get("batch_size", 32)))
 
 
 def run_bench(cfg: dict, out: Path) -> list[dict]:

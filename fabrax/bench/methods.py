@@ -184,6 +184,115 @@ class GFCSMethod:
         return out
 
 
+@dataclasses.dataclass
+class RLGuideMethod:
+    """The RL guide (fabrics_guided_rl_thesis ch. 3-4): a trained PPO policy steering the fabric at
+    the env's policy rate (2 Hz over a 60 Hz fabric), in curriculum stage 2, from the problem's start
+    until the mean keypoint distance is below the env's `success_distance` (0.08 m) or `episode_s`
+    (20 s) have passed; a collision judged by the env's checker also ends it. `scripted="switch"`
+    rolls out the env's pure-fabric baseline instead (the switch on from the first step: the fabric
+    aimed at the goal pose). The trajectory is the arm's configuration at every fabric step.
+    Problems are rolled out `batch_size` at a time in one `vmap`; `reaction_ms` (in every row's
+    info) is one policy inference plus one fabric step for a single env, best of 50, on this host."""
+
+    env: Any  # a FabricGuideEnv (its pool is unused: problems bring their scenes)
+    act: Any = None  # the deterministic policy on one env's observations (`fabrax.rl.policy.Guide.act`)
+    name: str = "rl_guide"
+    scripted: str | None = None  # "switch": the pure-fabric baseline, no policy
+    batch_size: int = 32
+    _run: Any = dataclasses.field(default=None, repr=False)
+    _reaction_ms: float | None = dataclasses.field(default=None, repr=False)
+
+    criterion = "keypoints"
+
+    def _action(self, obs):
+        if self.scripted == "switch":
+            return jax.numpy.zeros(self.env.action_size).at[-1].set(1.0)
+        return self.act(obs)
+
+    def _rollout(self, scene, start, goal_pos, goal_quat, goal_keypoints):
+        import jax.numpy as jnp
+
+        env = self.env
+        state = env.begin(scene, env.static_bps(scene), start, goal_pos, goal_quat, goal_keypoints)
+        state = state.replace(info={**state.info, "stage": jnp.asarray(2, jnp.int32)})
+
+        def body(carry, _):
+            s, alive = carry
+            nxt, qs, _ = env.step_with_path(s, self._action(s.obs))
+            nxt = jax.tree.map(lambda x, y: jnp.where(alive, x, y), nxt, s)
+            return (nxt, alive & (nxt.done == 0.0)), (qs, alive)
+
+        _, (qs, alive) = jax.lax.scan(body, (state, jnp.ones((), bool)), None, length=env.cfg.episode_steps)
+        return qs, alive
+
+    def reaction_ms(self, scene, start, goal_pos, goal_quat, goal_keypoints) -> float:
+        """One policy inference plus one fabric step for one env (ms, best of 50 after compiling)."""
+        from fabrax.rollout.rollout import integrate
+
+        env = self.env
+        state = env.begin(scene, env.static_bps(scene), start, goal_pos, goal_quat, goal_keypoints)
+
+        @jax.jit
+        def react(s):
+            params, _ = env.targets(s.pipeline_state, self._action(s.obs), jax.numpy.asarray(2))
+            ep = s.pipeline_state
+            return integrate(env.fabric, params, ep.scene, ep.fabric_q, ep.fabric_qd, env.cfg.fabric_dt, env.cfg.integrator)[0]
+
+        jax.block_until_ready(react(state))
+        best = float("inf")
+        for _ in range(50):
+            t0 = time.perf_counter()
+            jax.block_until_ready(react(state))
+            best = min(best, time.perf_counter() - t0)
+        return best * 1e3
+
+    def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]:
+        import jax.numpy as jnp
+
+        from fabrax.compiled import Compiled
+        from fabrax.robot.kinematics import frame_pose, keypoints, keypoints_at_pose
+        from fabrax.scene import COMMON_CAPACITY, stack
+
+        env = self.env
+        if robot.dof != env.robot.dof or robot.name != env.robot.name:
+            raise ValueError(f"the guide was trained on robot '{env.robot.name}', the problems are posed for '{robot.name}'")
+        if self._run is None:
+            self._run = Compiled(jax.jit(jax.vmap(self._rollout)))
+        frame = env.fabric.goal_frame
+        out: list[Solution] = []
+        for first in range(0, len(problems), self.batch_size):
+            chunk = problems[first : first + self.batch_size]
+            size = min(self.batch_size, 1 << (len(chunk) - 1).bit_length())
+            padded = chunk + [chunk[-1]] * (size - len(chunk))
+            goals = []
+            for p in padded:
+                if p.goal_pose is not None:
+                    pos, quat = (jnp.asarray(v, jnp.float32) for v in p.goal_pose)
+                    goals.append((pos, quat, keypoints_at_pose(robot, frame, pos, quat)))
+                else:
+                    pose = frame_pose(robot, jnp.asarray(p.goal_q, jnp.float32), frame)
+                    goals.append((pose.translation(), pose.rotation().wxyz, keypoints(robot, jnp.asarray(p.goal_q, jnp.float32))))
+            args = (
+                stack([p.scene.pad(**COMMON_CAPACITY) for p in padded]),
+                jnp.asarray(np.stack([p.start_q for p in padded]), jnp.float32),
+                *(jnp.stack([g[k] for g in goals]) for k in range(3)),
+            )
+            if self._reaction_ms is None:
+                self._reaction_ms = self.reaction_ms(*jax.tree.map(lambda a: a[0], args))
+            run, compile_s = self._run.get(*args)
+            t0 = time.perf_counter()
+            qs, alive = jax.block_until_ready(run(*args))
+            per = (time.perf_counter() - t0) / len(chunk)
+            qs, alive = np.asarray(qs), np.asarray(alive)
+            for k, p in enumerate(chunk):
+                steps = int(alive[k].sum())
+                q = np.concatenate([np.asarray(p.start_q, np.float32)[None], qs[k, :steps].reshape(-1, qs.shape[-1])])
+                info = {"policy_steps": steps, "reaction_ms": self._reaction_ms, "batch": len(chunk)}
+                out.append(Solution(q, env.cfg.fabric_dt, per, compile_s if k == 0 else 0.0, info))
+        return out
+
+
 def zlib_hash(name: str) -> int:
     """A stable 31-bit hash of a problem name (seeds per problem, independent of order)."""
     return zlib.crc32(name.encode()) & 0x7FFFFFFF

@@ -21,6 +21,8 @@ class ScenesConfig:
     mbm_classes: tuple[str, ...] = ()  # MBM classes whose train split (problems 1-50) is used; needs FABRAX_DATA
     mbm_limit: int = 50  # problems per class (from problem 1)
     generated: tuple[tuple[str, int], ...] = (("cuboid_forest", 4), ("shelves", 4), ("flying_cuboids", 4))
+    procedural: tuple[tuple[str, int], ...] = ()  # (class, count) of fabrax.problems.procedural (MBM-like, MPiNets-like) problems
+    procedural_seed: int = 10_000  # their generator seed: 10000 is `fabrax bench split=train`'s; the test split (seed 0) is never trained on
     configs_per_scene: int = 8  # collision-free configurations sampled per scene for the sampled start/goal modes
     margin: float = 0.02  # m: clearance of sampled configurations
     modes: tuple[float, float, float, float] = (0.55, 0.15, 0.15, 0.15)  # Table 3.1: (pre, pre), (pre, sampled), (sampled, pre), (sampled, sampled)
@@ -91,6 +93,21 @@ def scenes_config(cfg: dict[str, Any] | None) -> ScenesConfig:
             if not isinstance(n, int) or isinstance(n, bool) or n < 0:
                 raise ValueError(f"env.scenes.generated.{k} must be a count >= 0, got {n!r}")
         out["generated"] = tuple(gen.items())
+    if "procedural" in cfg:
+        from fabrax.problems.procedural import MBM_LIKE, MPINETS_LIKE
+
+        proc = dict(cfg["procedural"] or {})
+        bad = set(proc) - set(MBM_LIKE + MPINETS_LIKE)
+        if bad:
+            raise ValueError(f"unknown env.scenes.procedural classes {sorted(bad)} (classes: {', '.join(MBM_LIKE + MPINETS_LIKE)})")
+        for k, n in proc.items():
+            if not isinstance(n, int) or isinstance(n, bool) or n < 0:
+                raise ValueError(f"env.scenes.procedural.{k} must be a count >= 0, got {n!r}")
+        out["procedural"] = tuple(proc.items())
+    if "procedural_seed" in cfg:
+        out["procedural_seed"] = int(cfg["procedural_seed"])
+        if out["procedural_seed"] == 0:
+            raise ValueError("env.scenes.procedural_seed 0 is the benchmark's test split: train on another seed (10000 is the train split)")
     if "configs_per_scene" in cfg:
         out["configs_per_scene"] = _positive("env.scenes.configs_per_scene", cfg["configs_per_scene"], integer=True)
         if out["configs_per_scene"] < 2:
@@ -114,8 +131,8 @@ def scenes_config(cfg: dict[str, Any] | None) -> ScenesConfig:
     if "seed" in cfg:
         out["seed"] = int(cfg["seed"])
     sc = ScenesConfig(**out)
-    if not sc.mbm_classes and not any(n for _, n in sc.generated):
-        raise ValueError("env.scenes has no scene: give mbm_classes or a generated count > 0")
+    if not sc.mbm_classes and not any(n for _, n in sc.generated + sc.procedural):
+        raise ValueError("env.scenes has no scene: give mbm_classes or a generated or procedural count > 0")
     return sc
 
 

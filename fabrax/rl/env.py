@@ -38,12 +38,13 @@ from fabrax.config import load_fabric, load_robot
 from fabrax.fabrics import ArmFabric, Params
 from fabrax.problems.clearance import state_clearances
 from fabrax.problems.mbm import load_mbm
+from fabrax.problems.procedural import MPINETS_LIKE, generate
 from fabrax.rl.config import EnvConfig, env_config
-from fabrax.rl.observations import cell_centres, cell_index, intrinsic_reward, keypoint_distance, point_distances
+from fabrax.rl.observations import bps_vectors, cell_centres, cell_index, grid_points, intrinsic_reward, keypoint_distance, point_distances
 from fabrax.rl.scenes import ScenePool, build_pool, sample_episode
 from fabrax.robot.kinematics import frame_pose, keypoints, points, sphere_centers
 from fabrax.rollout.rollout import integrate
-from fabrax.scene import Scene
+from fabrax.scene import COMMON_CAPACITY, Scene
 
 METRICS = ("success", "collision", "keypoint_distance", "unique_cells", "r_sparse", "r_intrinsic", "switch")
 MJX_METRICS = ("mjx_contacts", "mjx_penetration", "tracking_error")  # the mjx backend's extra metrics
@@ -59,7 +60,7 @@ class Episode:
     scene: Scene
     scene_index: jax.Array
     mode: jax.Array  # start/goal mode of Table 3.1 (0-3)
-    goal_q: jax.Array  # a configuration whose hand pose is the goal
+    goal_q: jax.Array  # a configuration whose hand pose is the goal (the start where only the pose is given: `begin`)
     goal_pos: jax.Array
     goal_quat: jax.Array
     goal_keypoints: jax.Array  # (8, 3)
@@ -69,7 +70,8 @@ class Episode:
 
 
 class FabricGuideEnv(Env):
-    """brax `Env`: reset(rng) -> State, step(state, action) -> State; pure, jit- and vmap-able."""
+    """brax `Env`: reset(rng) -> State, step(state, action) -> State; pure, jit- and vmap-able.
+    `pool` may be None for an env whose episodes all come from `begin` (the benchmark method)."""
 
     def __init__(self, fabric: ArmFabric, params: Params, pool: ScenePool, cfg: EnvConfig):
         self.fabric, self.params, self.pool, self.cfg = fabric, params, pool, cfg
@@ -82,8 +84,11 @@ class FabricGuideEnv(Env):
         if cfg.backend == "mjx":
             from fabrax.rl.mjx_sim import MJXArm
 
-            s = pool.scene
-            capacity = {"cuboids": s.cuboids.center.shape[1], "cylinders": s.cylinders.center.shape[1], "spheres": s.spheres.center.shape[1]}
+            if pool is None:  # episodes from `begin` with scenes padded to the common capacity (the benchmark's)
+                capacity = {k: COMMON_CAPACITY[k] for k in ("cuboids", "cylinders", "spheres")}
+            else:
+                s = pool.scene
+                capacity = {"cuboids": s.cuboids.center.shape[1], "cylinders": s.cylinders.center.shape[1], "spheres": s.spheres.center.shape[1]}
             self.sim = MJXArm(self.robot, capacity, cfg.fabric_dt, cfg.sim_steps, cfg.kp, cfg.kd)
 
     # -- brax Env properties --------------------------------------------------------------
@@ -115,6 +120,12 @@ class FabricGuideEnv(Env):
     def reset(self, rng: jax.Array) -> State:
         i, start, goal_q, mode = sample_episode(self.pool, self._modes, rng)
         goal = frame_pose(self.robot, goal_q, self.fabric.goal_frame)
+        scene = jax.tree.map(lambda a: a[i], self.pool.scene)
+        return self.begin(scene, self.pool.bps[i], start, goal.translation(), goal.rotation().wxyz, keypoints(self.robot, goal_q), i, mode, goal_q)
+
+    def begin(self, scene: Scene, bps, start, goal_pos, goal_quat, goal_keypoints, scene_index=0, mode=0, goal_q=None) -> State:
+        """An episode from a given scene (with its `static_bps`), start configuration at rest and goal
+        pose of the fabric's goal frame with its keypoints (e.g. a benchmark problem's)."""
         zero = jnp.zeros_like(start)
         ep = Episode(
             q=start,
@@ -122,21 +133,25 @@ class FabricGuideEnv(Env):
             fabric_q=start,
             fabric_qd=zero,
             fabric_qdd=zero,
-            scene=jax.tree.map(lambda a: a[i], self.pool.scene),
-            scene_index=i,
-            mode=mode,
-            goal_q=goal_q,
-            goal_pos=goal.translation(),
-            goal_quat=goal.rotation().wxyz,
-            goal_keypoints=keypoints(self.robot, goal_q),
+            scene=scene,
+            scene_index=jnp.asarray(scene_index, jnp.int32),
+            mode=jnp.asarray(mode, jnp.int32),
+            goal_q=start if goal_q is None else goal_q,
+            goal_pos=goal_pos,
+            goal_quat=goal_quat,
+            goal_keypoints=goal_keypoints,
             counts=jnp.zeros(self.cfg.map_cells**3, jnp.uint8),
             switch=jnp.zeros((), bool),
             t=jnp.zeros((), jnp.int32),
         )
         zeros = {k: jnp.zeros(()) for k in self.metric_names}
-        obs = self.observe(ep, self.pool.bps[i])
+        obs = self.observe(ep, bps)
         zeros["keypoint_distance"] = keypoint_distance(obs["hand_keypoints"].reshape(8, 3), ep.goal_keypoints)
         return State(ep, obs, jnp.zeros(()), jnp.zeros(()), zeros, {"stage": jnp.ones((), jnp.int32)})
+
+    def static_bps(self, scene: Scene) -> jax.Array:
+        """The static basis point set of a scene (eq. 3.16), as the pool computes it."""
+        return bps_vectors(scene, grid_points(self.cfg.bps_cells, *self.cfg.bounds), self.cfg.bps_clip)
 
     def targets(self, ep: Episode, action: jax.Array, stage: jax.Array):
         """The fabric parameters an action commands (see the module docstring) and the latched switch."""
@@ -240,9 +255,13 @@ class FabricGuideEnv(Env):
 def make_env(cfg: EnvConfig | dict | None = None, robot: str | dict = "panda", fabric: str | dict = "panda", data_dir=None) -> FabricGuideEnv:
     """The environment from configs: robot and fabric by config name (configs/robot, configs/fabric),
     `cfg` an `EnvConfig` or its mapping. MBM train problems (1-50) of `cfg.scenes.mbm_classes` are
-    read from `data_dir` (default $FABRAX_DATA)."""
+    read from `data_dir` (default $FABRAX_DATA); procedural problems of `cfg.scenes.procedural` are
+    generated with `procedural_seed` (10000: the benchmark's train split)."""
     cfg = cfg if isinstance(cfg, EnvConfig) else env_config(cfg)
     rob = load_robot(robot)
     arm, params = load_fabric(rob, fabric)
     problems = load_mbm(rob, data_dir, cfg.scenes.mbm_classes, split="train", limit=cfg.scenes.mbm_limit) if cfg.scenes.mbm_classes else []
-    return FabricGuideEnv(arm, params, build_pool(rob, cfg, problems), cfg)
+    for cls, n in cfg.scenes.procedural:
+        family = "mpinets_like" if cls in MPINETS_LIKE else "mbm_like"
+        problems += generate(rob, family, [cls], n, seed=cfg.scenes.procedural_seed, frame=arm.goal_frame) if n else []
+    return FabricGuideEnv(arm, params, build_pool(rob, cfg, problems, arm.goal_frame), cfg)

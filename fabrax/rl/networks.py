@@ -21,6 +21,7 @@ from flax import linen as nn
 
 BPS_HEAD = ((8, 4, 2), (16, 3, 2), (32, 2, 1))  # (filters, kernel, stride) per layer
 MAP_HEAD = ((4, 4, 2), (8, 3, 2), (16, 3, 1))
+GRIDS = ("bps", "exploration")  # 3-D inputs: given to PPO as "pixels/<name>", which brax's normaliser leaves out
 PROPRIO = ("goal_keypoints", "q", "hand_keypoints", "fabric_q", "fabric_qd", "fabric_qdd", "dynamic_bps", "switch")
 
 
@@ -86,3 +87,58 @@ class GuideNetwork(nn.Module):
         for width in self.hidden:
             x = nn.elu(nn.Dense(width)(x))
         return nn.Dense(self.outputs)(x)
+
+
+def ppo_observation(obs: dict[str, jax.Array]) -> dict[str, jax.Array]:
+    """The env's observations as PPO sees them: the grids renamed "pixels/<name>" (brax's running
+    normaliser needs inputs of one rank and skips "pixels/" keys; the grids stay unnormalised)."""
+    return {("pixels/" + k if k in GRIDS else k): v for k, v in obs.items()}
+
+
+def _flat_apply(module: nn.Module, shapes: dict[str, tuple[int, ...]], variables, obs: dict[str, jax.Array]) -> jax.Array:
+    """Apply `module` to observations with any leading batch axes (PPO's unrolls are (B, T, ...))."""
+    lead = obs["q"].shape[: obs["q"].ndim - len(shapes["q"])]
+    flat = {k: obs[k].reshape((-1,) + tuple(shapes[k])) for k in shapes}
+    out = module.apply(variables, flat)
+    return out.reshape(lead + out.shape[-1:])
+
+
+def _split(obs: dict):
+    return {k: v for k, v in obs.items() if not k.startswith("pixels/")}, {k[len("pixels/") :]: v for k, v in obs.items() if k.startswith("pixels/")}
+
+
+def make_guide_networks(
+    observation_size: dict[str, tuple[int, ...]],
+    action_size: int,
+    preprocess_observations_fn=None,
+    variant: str = "conv",
+    hidden: Sequence[int] = (512, 256, 128),
+):
+    """brax `network_factory` for `ppo.train`: actor and critic are each a `GuideNetwork` (Table
+    3.4; separate parameters), the actor's outputs the mean and scale of brax's tanh-squashed
+    Gaussian over the action box [-1, 1]. `preprocess_observations_fn` is brax's normaliser
+    (identity by default); `variant` and `hidden` are plain values, so brax's checkpoints record them."""
+    from brax.training import distribution, networks, types
+    from brax.training.agents.ppo.networks import PPONetworks
+
+    preprocess = preprocess_observations_fn or types.identity_observation_preprocessor
+    if not isinstance(observation_size, dict) or "q" not in observation_size or "pixels/bps" not in observation_size:
+        raise ValueError("the guide's networks need the environment's dict observations as `ppo_observation` names them")
+    shapes = {k.removeprefix("pixels/"): tuple(v) for k, v in observation_size.items()}
+    dist = distribution.NormalTanhDistribution(event_size=action_size)
+    hidden = tuple(int(h) for h in hidden)  # a checkpoint's JSON gives a list
+
+    def network(outputs: int):
+        module = GuideNetwork(outputs, variant=variant, hidden=hidden)
+        dummy = {k: jnp.zeros((1,) + s) for k, s in shapes.items()}
+
+        def apply(processor_params, params, obs):
+            vectors, grids = _split(obs)  # the normaliser's statistics cover the vectors only
+            return _flat_apply(module, shapes, params, {**preprocess(vectors, processor_params), **grids})
+
+        return networks.FeedForwardNetwork(init=lambda key: module.init(key, dummy), apply=apply)
+
+    policy, value = network(dist.param_size), network(1)
+    value_apply = value.apply
+    value = networks.FeedForwardNetwork(init=value.init, apply=lambda *a: value_apply(*a)[..., 0])
+    return PPONetworks(policy_network=policy, value_network=value, parametric_action_distribution=dist)

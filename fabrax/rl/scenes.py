@@ -63,9 +63,10 @@ def _fit(scene: Scene, capacity: dict[str, int], name: str) -> Scene:
     return Scene(used_only(scene.cuboids), used_only(scene.cylinders), used_only(scene.spheres), empty_cloud)
 
 
-def build_pool(robot: Robot, cfg: EnvConfig, problems: list[Problem] = ()) -> ScenePool:
-    """A `ScenePool` of the dataset `problems` (joint goals, e.g. `load_mbm(split='train')`; invalid
-    ones are skipped) and the generated scenes of `cfg.scenes`."""
+def build_pool(robot: Robot, cfg: EnvConfig, problems: list[Problem] = (), frame: str = "panda_hand") -> ScenePool:
+    """A `ScenePool` of the dataset `problems` (e.g. `load_mbm(split='train')`; invalid ones are
+    skipped; a pose goal of `frame` becomes the collision-free IK solution nearest the start, and a
+    problem without one is skipped) and the generated scenes of `cfg.scenes`."""
     sc = cfg.scenes
     capacity = dict(sc.capacity)
     rng = np.random.default_rng(sc.seed)
@@ -73,9 +74,13 @@ def build_pool(robot: Robot, cfg: EnvConfig, problems: list[Problem] = ()) -> Sc
     for p in problems:
         if not p.valid:
             continue
-        if p.goal_q is None:
-            raise ValueError(f"dataset problem '{p.name}' has no joint goal (the pool stores goals as configurations)")
-        rows.append((p.name, p.scene, np.asarray(p.start_q), np.asarray(p.goal_q), True))
+        goal = p.goal_q
+        if goal is None:  # a pose goal: the pool stores goals as configurations, so take the IK solution nearest the start
+            solutions = generators.ik_configs(robot, p.scene, frame, *p.goal_pose, rng, seeds=128, margin=0.005, near=np.asarray(p.start_q))
+            if len(solutions) == 0:
+                continue
+            goal = solutions[0]
+        rows.append((p.name, p.scene, np.asarray(p.start_q), np.asarray(goal), True))
     for kind, n in sc.generated:
         for k in range(n):
             rows.append((f"{kind}/{k:04d}", from_dict(GENERATORS[kind](rng)), None, None, False))

@@ -13,17 +13,21 @@ import jax.numpy as jnp
 POLICIES = ("random", "switch", "hold")
 
 
-def episode(env, policy: str, key: jax.Array):
+def episode(env, policy: str, key: jax.Array, act=None):
     """One episode of `policy` from a reset: substep configurations (T, S, n), hand targets (T, 7),
-    visit counts (T, cells^3), metrics (T,) per policy step, alive (T,) (False after the episode ended)."""
-    stage = jnp.asarray(2 if policy == "switch" else 1, jnp.int32)
+    visit counts (T, cells^3), metrics (T,) per policy step, alive (T,) (False after the episode ended).
+    `act` (a trained guide's deterministic policy, `fabrax.rl.policy.Guide.act`) replaces the
+    scripted actions, in stage 2."""
+    stage = jnp.asarray(2 if policy == "switch" or act is not None else 1, jnp.int32)
     k_reset, k_act = jax.random.split(key)
     state = env.reset(k_reset)
     state = state.replace(info={**state.info, "stage": stage})
 
     def body(carry, k):
         s, alive = carry
-        if policy == "random":
+        if act is not None:
+            a = act(s.obs)
+        elif policy == "random":
             a = jax.random.uniform(k, (env.action_size,), minval=-1.0, maxval=1.0)
         else:
             a = jnp.zeros(env.action_size).at[-1].set(1.0 if policy == "switch" else -1.0)

@@ -4,7 +4,8 @@ Shown: the scene, the goal pose and its keypoints, the end-effector attractor's 
 policy step, the exploration map's visited cells, and on a toggle the static basis point vectors
 (every second grid point along each axis). Actions come from `policy`:
 random (uniform in [-1, 1], curriculum stage 1), switch (stage 2 with the fabric switch on from the
-first step: the pure fabric aimed at the goal) or hold (`fabrax.rl.scripted`).
+first step: the pure fabric aimed at the goal) or hold (`fabrax.rl.scripted`), or a trained guide
+(`checkpoint`).
 """
 
 from __future__ import annotations
@@ -24,13 +25,23 @@ CELLS = (90, 140, 230)
 BPS = (160, 160, 160)
 
 
-def rl_view(viewer: Viewer, fabric_name: str = "panda", policy: str = "random", seed: int = 0, env_cfg: dict | None = None) -> dict:
-    """Roll one episode out and play it back; returns what happened (steps, success, collision)."""
-    if policy not in POLICIES:
+def rl_view(viewer: Viewer, fabric_name: str = "panda", policy: str = "random", seed: int = 0, env_cfg: dict | None = None, checkpoint=None) -> dict:
+    """Roll one episode out and play it back; returns what happened (steps, success, collision).
+    With `checkpoint` (an experiments/rl.py run) the trained guide acts, on a scene of its run's
+    held-out evaluation set (`eval_scenes`), with the run's fabric."""
+    act, fabric = None, fabric_name
+    if checkpoint is not None:
+        from fabrax.rl.policy import load_guide
+        from fabrax.rl.train import eval_settings
+
+        guide = load_guide(checkpoint)
+        act, policy, fabric = guide.act, "guide", guide.settings["fabric"]
+        env_cfg = eval_settings(guide.settings["env"], guide.settings["eval_scenes"])
+    elif policy not in POLICIES:
         raise ValueError(f"policy must be one of {POLICIES}, got '{policy}'")
     cfg = env_cfg or {"scenes": {"generated": {"cuboid_forest": 1, "shelves": 1, "flying_cuboids": 1}, "configs_per_scene": 4}}
-    env = make_env(cfg, robot=viewer.robot_name, fabric=fabric_name)
-    start, (qs, targets, counts, metrics, alive) = jax.jit(lambda k: episode(env, policy, k))(jax.random.PRNGKey(seed))
+    env = make_env(cfg, robot=viewer.robot_name, fabric=fabric)
+    start, (qs, targets, counts, metrics, alive) = jax.jit(lambda k: episode(env, policy, k, act))(jax.random.PRNGKey(seed))
     ep = start.pipeline_state
     steps = int(np.asarray(alive).sum())
     q = np.concatenate([np.asarray(ep.q)[None], np.asarray(qs[:steps]).reshape(-1, env.robot.dof)])

@@ -1,0 +1,66 @@
+"""A trained guide from its run directory: settings, networks and the deterministic policy.
+
+`load_guide(path)` takes an experiments/rl.py run directory (its newest checkpoint) or one
+`checkpoints/<steps>/` directory, and refuses a missing or unreadable one with a one-line
+`ValueError` naming it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any, Callable
+
+from fabrax.rl.networks import make_guide_networks, ppo_observation
+
+
+@dataclasses.dataclass
+class Guide:
+    settings: dict[str, Any]  # the run's settings.json
+    checkpoint: Path
+    params: Any  # (normaliser, policy, value) as brax saves them
+    act: Callable  # act(obs) -> action: the deterministic policy on one env's observations (the env's names)
+    steps: int  # env steps it was trained for
+
+
+def _checkpoint_dir(path: Path) -> tuple[Path, Path]:
+    """(checkpoint directory, run directory) of a run directory or a checkpoint directory."""
+    from fabrax.rl.train import latest_checkpoint
+
+    if not path.exists():
+        raise ValueError(f"no guide checkpoint at {path}: the path does not exist")
+    if (path / "ppo_network_config.json").exists():
+        return path, path.parent.parent
+    ckpt = latest_checkpoint(path)
+    if ckpt is None:
+        raise ValueError(f"no guide checkpoint at {path}: expected an experiments/rl.py run directory with checkpoints/<steps>/")
+    return ckpt, path
+
+
+def load_guide(path: str | Path) -> Guide:
+    import jax
+    from brax.training import checkpoint as brax_checkpoint
+    from brax.training.agents.ppo import checkpoint as ppo_checkpoint
+    from brax.training.agents.ppo import networks as ppo_networks
+
+    ckpt, run = _checkpoint_dir(Path(path).resolve())  # orbax takes absolute paths only
+    settings_path = run / "settings.json"
+    if not settings_path.exists():
+        raise ValueError(f"{settings_path}: missing (the run's settings are needed to rebuild its environment)")
+    try:
+        settings = json.loads(settings_path.read_text())
+        config = ppo_checkpoint.load_config(ckpt)
+        params = ppo_checkpoint.load(ckpt)
+        network = brax_checkpoint.get_network(config, make_guide_networks)
+    except Exception as e:  # orbax / json errors of a damaged checkpoint, whatever their type
+        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        raise ValueError(f"{ckpt}: unreadable guide checkpoint ({type(e).__name__}: {first})") from None
+    policy = ppo_networks.make_inference_fn(network)(params, deterministic=True)
+    key = jax.random.PRNGKey(0)  # unused by the deterministic policy
+
+    def act(obs):
+        batched = jax.tree.map(lambda x: x[None], ppo_observation(obs))
+        return policy(batched, key)[0][0]
+
+    return Guide(settings, ckpt, params, act, int(ckpt.name))

@@ -1,0 +1,193 @@
+"""Training the RL guide (issue 14): the training wrappers, a few hundred PPO steps that change the
+networks, checkpoint -> resume, settings checks, and the benchmark method on a checkpoint."""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+from fabrax.rl.train import normalise, train
+
+TINY = {  # configs/rl/tiny.yaml's values: seconds of training
+    "env": {
+        "substeps": 4,
+        "episode_s": 2.0,
+        "scenes": {"generated": {"cuboid_forest": 2, "shelves": 0, "flying_cuboids": 0}, "configs_per_scene": 4},
+    },
+    "eval_scenes": {"seed": 1, "procedural_seed": 20000},
+    "network": {"variant": "mlp", "hidden": [32, 32]},
+    "curriculum": {"cells": 3},
+    "ppo": {
+        "num_timesteps": 256,
+        "num_envs": 8,
+        "unroll_length": 4,
+        "batch_size": 8,
+        "num_minibatches": 4,
+        "num_updates_per_batch": 1,
+        "num_evals": 2,
+        "num_eval_envs": 8,
+    },
+}
+
+
+def test_the_tiny_preset_is_the_tests_settings():
+    """experiments/rl.py rl=tiny composes to these settings (the resume test below relies on it)."""
+    from hydra import compose, initialize_config_dir
+
+    from fabrax import config
+
+    with initialize_config_dir(config_dir=str(config.config_dir()), version_base=None):
+        cfg = config.resolve(compose("rl", overrides=["rl=tiny"]))
+    app = normalise({k: cfg[k] for k in ("robot", "fabric", "env", "eval_scenes", "network", "curriculum", "ppo")})
+    assert app == normalise(TINY)
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """A tiny training run: (run directory, initial parameters, trained parameters)."""
+    from brax.training.agents.ppo import train as ppo
+
+    from fabrax.rl.env import make_env
+    from fabrax.rl.networks import make_guide_networks
+    from fabrax.rl.wrappers import wrap_for_training
+
+    run_dir = tmp_path_factory.mktemp("rl") / "run"
+    env = make_env(TINY["env"])
+    factory = lambda *a, **k: make_guide_networks(*a, **k, variant="mlp", hidden=(32, 32))  # noqa: E731
+    # brax's own initialisation with the same seed and networks: the parameters before any update
+    _, init, _ = ppo.train(
+        env, num_timesteps=0, episode_length=env.cfg.episode_steps, wrap_env_fn=wrap_for_training, network_factory=factory, num_envs=8
+    )
+    _, params, _ = train(TINY, run_dir)
+    return run_dir, init, params
+
+
+def _leaves(p):
+    return [np.asarray(x) for x in jax.tree.leaves(p)]
+
+
+def test_ppo_steps_change_the_networks_and_write_the_run(run):
+    run_dir, init, params = run
+    changed = [not np.allclose(a, b) for a, b in zip(_leaves(init[1]), _leaves(params[1]))]
+    assert sum(changed) >= len(changed) // 2  # most policy tensors moved
+    rows = [json.loads(line) for line in (run_dir / "progress.jsonl").read_text().splitlines()]
+    evals = [r for r in rows if "eval" in r]
+    assert len(evals) >= 2 and all(0.0 <= r["eval"]["success"] <= 1.0 for r in evals)
+    assert all(r["eval"]["stage_per_step"] == 2.0 for r in evals)  # evaluation runs the task
+    trained = [r for r in rows if "train" in r and "unique_cells" in r["train"]]
+    assert trained and all(0 < r["train"]["unique_cells"] <= 8000 for r in trained)  # final counts, not sums over steps
+    assert (run_dir / "curves.png").stat().st_size > 0
+    assert json.loads((run_dir / "settings.json").read_text()) == normalise(TINY)
+
+
+def test_checkpoint_holds_the_trained_parameters_and_resume_continues(run, tmp_path):
+    from fabrax.rl.policy import load_guide
+    from fabrax.rl.train import latest_checkpoint
+
+    run_dir, _, params = run
+    guide = load_guide(run_dir)
+    assert guide.steps == int(latest_checkpoint(run_dir).name) >= 256
+    for a, b in zip(_leaves(guide.params), _leaves(params)):
+        np.testing.assert_array_equal(a, b)
+
+    resumed = tmp_path / "resumed"
+    shutil.copytree(run_dir, resumed)
+    more = {**TINY, "ppo": {**TINY["ppo"], "num_timesteps": 512}}
+    with pytest.raises(ValueError, match="already holds a run"):
+        train(more, resumed)
+    with pytest.raises(ValueError, match="other settings .*network.hidden"):
+        train({**more, "network": {"variant": "mlp", "hidden": [64]}}, resumed, resume=True)
+    # resume through the hydra app, on two host devices: brax's pmap splits the envs between them
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    cmd = [sys.executable, "experiments/rl.py", "rl=tiny", "resume=true", "ppo.num_timesteps=512", f"hydra.run.dir={resumed}"]
+    done = subprocess.run(cmd, cwd=Path(__file__).parents[1], env=env, capture_output=True, text=True, timeout=1200)
+    assert done.returncode == 0, done.stderr[-2000:]
+    steps = sorted(int(p.name) for p in (resumed / "checkpoints").iterdir())
+    assert steps[-1] >= 512 and steps[-1] > guide.steps
+    rows = [json.loads(line) for line in (resumed / "progress.jsonl").read_text().splitlines()]
+    assert max(r["step"] for r in rows) == steps[-1]
+    new = load_guide(resumed).params
+    assert any(not np.allclose(a, b) for a, b in zip(_leaves(new[1]), _leaves(params[1])))
+    assert {r["devices"] for r in rows if r["step"] > guide.steps} == {2}
+
+
+def test_bench_method_runs_a_checkpoint_and_refuses_bad_ones(run, panda, tmp_path):
+    from fabrax.bench.cli import rl_guide_method
+    from fabrax.bench.runner import run as bench_run
+    from fabrax.config import load
+    from fabrax.problems.generators import demo_problem
+
+    run_dir, _, _ = run
+    cfg = {"fabric": load("fabric", "panda"), "frame": "panda_hand"}
+    method = rl_guide_method({"name": "rl_guide", "checkpoint": str(run_dir), "scripted": None}, cfg, panda)
+    problem = demo_problem(panda)
+    rows = bench_run(method, panda, [problem, problem])
+    assert len(rows) == 2 and rows[0]["criterion"] == "keypoints"
+    assert rows[0]["path"].shape[1] == panda.dof and rows[0]["path"].shape[0] > 1
+    np.testing.assert_allclose(rows[0]["path"][0], problem.start_q, atol=1e-6)
+    sol = method.solve(panda, [problem, problem])[0]  # the compiled batch of two again
+    assert sol.dt == pytest.approx(1 / 60) and sol.info["reaction_ms"] > 0
+    assert len(sol.q) == 1 + sol.info["policy_steps"] * method.env.cfg.substeps
+
+    with pytest.raises(SystemExit, match="does not exist"):
+        rl_guide_method({"name": "rl_guide", "checkpoint": str(tmp_path / "nothing"), "scripted": None}, cfg, panda)
+    broken = tmp_path / "broken"
+    shutil.copytree(run_dir, broken)
+    for f in (broken / "checkpoints").rglob("manifest.ocdbt"):
+        f.write_bytes(b"not a checkpoint")
+    with pytest.raises(SystemExit, match="unreadable guide checkpoint"):
+        rl_guide_method({"name": "rl_guide", "checkpoint": str(broken), "scripted": None}, cfg, panda)
+
+
+def test_resampling_reset_and_episode_sums():
+    """Finished envs start new episodes (brax's AutoResetWrapper would replay the first) in the
+    curriculum stage reached; the episode sums of the increments are the cumulative values."""
+    from fabrax.rl.env import make_env
+    from fabrax.rl.wrappers import wrap_for_training
+
+    env = make_env({**TINY["env"], "episode_s": 0.4})  # 6 policy steps per episode
+    wrapped = wrap_for_training(env, env.cfg.episode_steps, cells=1.0)
+    state = jax.jit(wrapped.reset)(jax.random.split(jax.random.PRNGKey(0), 4))
+    assert np.all(np.asarray(state.info["stage"]) == 1)
+
+    @jax.jit
+    def unroll(state):
+        def body(s, k):
+            a = jax.random.uniform(k, (4, env.action_size), minval=-1, maxval=1)
+            n = wrapped.step(s, a)
+            return n, (n.done, n.info["episode_metrics"]["unique_cells"], n.info["last_cells"], n.pipeline_state.goal_pos, n.info["stage"])
+
+        return jax.lax.scan(body, state, jax.random.split(jax.random.PRNGKey(1), 14))[1]
+
+    done, sums, last, goal, stage = (np.asarray(x) for x in unroll(state))
+    first_goal = np.asarray(state.pipeline_state.goal_pos)
+    assert done[5].all()  # the time limit ends every env's first episode at its 6th step
+    first_end = np.argmax(done, axis=0)
+    for e in range(4):  # within the first episode the summed increments are the cumulative count
+        np.testing.assert_allclose(sums[: first_end[e], e], last[: first_end[e], e])
+    assert not np.allclose(goal[6], first_goal)  # new episodes, not the first one again
+    assert np.all(stage[6:] == 2)  # finished episodes visited >= 1 cell: the curriculum moved on
+
+
+def test_viewer_plays_the_trained_guide_on_a_held_out_scene(run):
+    import socket
+
+    from fabrax.viz.app import Viewer
+    from fabrax.viz.rl_view import rl_view
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    viewer = Viewer("panda", port=port)
+    try:
+        info = rl_view(viewer, checkpoint=run[0])
+    finally:
+        viewer.close()
+    assert info["policy"] == "guide" and info["scene"].startswith("cuboid_forest/")
+    assert info["fabric_steps"] == 1 + 4 * info["steps"]  # the run's 4 substeps per policy step
