@@ -76,6 +76,18 @@ def _positive(name: str, value, integer: bool = False):
     return value
 
 
+def _counts(value, known, where: str, what: str) -> tuple[tuple[str, int], ...]:
+    """A mapping (or pairs) of names in `known` to counts >= 0, checked."""
+    counts = dict(value or {})
+    bad = set(counts) - set(known)
+    if bad:
+        raise ValueError(f"unknown {where} {what} {sorted(bad)} ({what}: {', '.join(known)})")
+    for k, n in counts.items():
+        if not isinstance(n, int) or isinstance(n, bool) or n < 0:
+            raise ValueError(f"{where}.{k} must be a count >= 0, got {n!r}")
+    return tuple(counts.items())
+
+
 def scenes_config(cfg: dict[str, Any] | None) -> ScenesConfig:
     cfg = dict(cfg or {})
     _check_keys(cfg, ScenesConfig, "rl env.scenes")
@@ -85,25 +97,11 @@ def scenes_config(cfg: dict[str, Any] | None) -> ScenesConfig:
     if "mbm_limit" in cfg:
         out["mbm_limit"] = _positive("env.scenes.mbm_limit", cfg["mbm_limit"], integer=True)
     if "generated" in cfg:
-        gen = dict(cfg["generated"] or {})
-        bad = set(gen) - set(GENERATED)
-        if bad:
-            raise ValueError(f"unknown env.scenes.generated kinds {sorted(bad)} (kinds: {', '.join(GENERATED)})")
-        for k, n in gen.items():
-            if not isinstance(n, int) or isinstance(n, bool) or n < 0:
-                raise ValueError(f"env.scenes.generated.{k} must be a count >= 0, got {n!r}")
-        out["generated"] = tuple(gen.items())
+        out["generated"] = _counts(cfg["generated"], GENERATED, "env.scenes.generated", "kinds")
     if "procedural" in cfg:
         from fabrax.problems.procedural import MBM_LIKE, MPINETS_LIKE
 
-        proc = dict(cfg["procedural"] or {})
-        bad = set(proc) - set(MBM_LIKE + MPINETS_LIKE)
-        if bad:
-            raise ValueError(f"unknown env.scenes.procedural classes {sorted(bad)} (classes: {', '.join(MBM_LIKE + MPINETS_LIKE)})")
-        for k, n in proc.items():
-            if not isinstance(n, int) or isinstance(n, bool) or n < 0:
-                raise ValueError(f"env.scenes.procedural.{k} must be a count >= 0, got {n!r}")
-        out["procedural"] = tuple(proc.items())
+        out["procedural"] = _counts(cfg["procedural"], MBM_LIKE + MPINETS_LIKE, "env.scenes.procedural", "classes")
     if "procedural_seed" in cfg:
         out["procedural_seed"] = int(cfg["procedural_seed"])
         if out["procedural_seed"] == 0:
@@ -120,14 +118,8 @@ def scenes_config(cfg: dict[str, Any] | None) -> ScenesConfig:
             raise ValueError(f"env.scenes.modes must be 4 non-negative probabilities (Table 3.1), got {list(modes)}")
         out["modes"] = tuple(m / sum(modes) for m in modes)
     if "capacity" in cfg:
-        cap = dict(cfg["capacity"] or {})
-        bad = set(cap) - {"cuboids", "cylinders", "spheres"}
-        if bad:
-            raise ValueError(f"unknown env.scenes.capacity kinds {sorted(bad)} (kinds: cuboids, cylinders, spheres)")
-        for k, n in cap.items():
-            if not isinstance(n, int) or isinstance(n, bool) or n < 0:
-                raise ValueError(f"env.scenes.capacity.{k} must be a count >= 0, got {n!r}")
-        out["capacity"] = tuple({**dict(ScenesConfig.capacity), **cap}.items())
+        cap = _counts(cfg["capacity"], ("cuboids", "cylinders", "spheres"), "env.scenes.capacity", "kinds")
+        out["capacity"] = tuple({**dict(ScenesConfig.capacity), **dict(cap)}.items())
     if "seed" in cfg:
         out["seed"] = int(cfg["seed"])
     sc = ScenesConfig(**out)
