@@ -200,6 +200,14 @@ def test_generators_deterministic_and_valid(panda, family, cls):
     assert not np.array_equal(np.asarray(a[0].scene.cuboids.center), np.asarray(c[0].scene.cuboids.center))
     if family == "mpinets_like":
         assert a[0].goal_pose is not None and a[0].goal_q is None
+        from fabrax.bench.cli import with_ik_goal
+
+        ik = with_ik_goal(panda, a[0], "panda_hand")  # a joint goal for joint-space methods; the pose stays the goal
+        assert ik.valid and ik.goal_pose is a[0].goal_pose
+        pose = frame_pose(panda, jnp.asarray(ik.goal_q, jnp.float32), "panda_hand")
+        np.testing.assert_allclose(pose.translation(), a[0].goal_pose[0], atol=2e-3)
+        assert not check_path(panda, ik.scene, ik.goal_q[None]).collision
+        np.testing.assert_array_equal(with_ik_goal(panda, a[0], "panda_hand").goal_q, ik.goal_q)  # seeded by the name
     else:
         assert not check_path(panda, a[0].scene, a[0].goal_q[None]).collision
     with pytest.raises(ValueError, match="unknown"):

@@ -69,19 +69,15 @@ def with_ik_goal(robot, p, frame: str):
     that pose and keypoint success are judged against. Without a solution the problem is marked
     invalid (reported, not run)."""
     import dataclasses
-    import zlib
 
-    import numpy as np
-
-    from fabrax.problems.generators import ik_configs
+    from fabrax.problems.generators import ik_goal
 
     if p.goal_q is not None or p.goal_pose is None:
         return p
-    rng = np.random.default_rng(zlib.crc32(p.name.encode()))
-    solutions = ik_configs(robot, p.scene, frame, *p.goal_pose, rng, seeds=128, margin=0.005, near=np.asarray(p.start_q))
-    if len(solutions) == 0:
+    goal = ik_goal(robot, p, frame)
+    if goal is None:
         return dataclasses.replace(p, valid=False, reason="no collision-free IK solution of the goal pose")
-    return dataclasses.replace(p, goal_q=solutions[0])
+    return dataclasses.replace(p, goal_q=goal)
 
 
 def gfcs_config(method: dict, cfg: dict):
@@ -140,9 +136,9 @@ def rl_guide_method(m: dict, cfg: dict, robot):
         except ValueError as e:
             raise SystemExit(f"fabrax bench: {e}") from None
         act, env_settings, fabric_cfg = guide.act, guide.settings["env"], guide.settings["fabric"]
-        trained = config.load_robot(guide.settings["robot"])
-        if trained.name != robot.name:
-            raise SystemExit(f"fabrax bench: the guide was trained on robot '{trained.name}'; run it with robot={trained.name}")
+        trained = guide.settings["robot"]["name"]
+        if trained != robot.name:
+            raise SystemExit(f"fabrax bench: the guide was trained on robot '{trained}'; run it with robot={trained}")
     env_cfg = env_config(env_settings)
     fabric, params = config.load_fabric(robot, fabric_cfg)
     env = FabricGuideEnv(fabric, params, None, env_cfg)

@@ -210,12 +210,19 @@ class RLGuideMethod:
             return jax.numpy.zeros(self.env.action_size).at[-1].set(1.0)
         return self.act(obs)
 
-    def _rollout(self, scene, start, goal_pos, goal_quat, goal_keypoints):
+    def _begin(self, scene, start, goal_pos, goal_quat, goal_keypoints):
+        """The episode of one problem, in stage 2."""
         import jax.numpy as jnp
 
         env = self.env
         state = env.begin(scene, env.static_bps(scene), start, goal_pos, goal_quat, goal_keypoints)
-        state = state.replace(info={**state.info, "stage": jnp.asarray(2, jnp.int32)})
+        return state.replace(info={**state.info, "stage": jnp.asarray(2, jnp.int32)})
+
+    def _rollout(self, scene, start, goal_pos, goal_quat, goal_keypoints):
+        import jax.numpy as jnp
+
+        env = self.env
+        state = self._begin(scene, start, goal_pos, goal_quat, goal_keypoints)
 
         def body(carry, _):
             s, alive = carry
@@ -231,7 +238,7 @@ class RLGuideMethod:
         from fabrax.rollout.rollout import integrate
 
         env = self.env
-        state = env.begin(scene, env.static_bps(scene), start, goal_pos, goal_quat, goal_keypoints)
+        state = jax.jit(self._begin)(scene, start, goal_pos, goal_quat, goal_keypoints)
 
         @jax.jit
         def react(s):
@@ -251,7 +258,7 @@ class RLGuideMethod:
         import jax.numpy as jnp
 
         from fabrax.compiled import Compiled
-        from fabrax.robot.kinematics import frame_pose, keypoints, keypoints_at_pose
+        from fabrax.robot.kinematics import frame_path, keypoints_at_pose
         from fabrax.scene import COMMON_CAPACITY, stack
 
         env = self.env
@@ -265,18 +272,22 @@ class RLGuideMethod:
             chunk = problems[first : first + self.batch_size]
             size = min(self.batch_size, 1 << (len(chunk) - 1).bit_length())
             padded = chunk + [chunk[-1]] * (size - len(chunk))
-            goals = []
-            for p in padded:
+            # goal poses: pose goals as given, joint goals through one batched FK
+            pos = np.zeros((size, 3), np.float32)
+            quat = np.zeros((size, 4), np.float32)
+            joint = [k for k, p in enumerate(padded) if p.goal_pose is None]
+            if joint:
+                jp, jq = frame_path(robot, jnp.asarray(np.stack([padded[k].goal_q for k in joint]), jnp.float32), frame)
+                pos[joint], quat[joint] = np.asarray(jp), np.asarray(jq)
+            for k, p in enumerate(padded):
                 if p.goal_pose is not None:
-                    pos, quat = (jnp.asarray(v, jnp.float32) for v in p.goal_pose)
-                    goals.append((pos, quat, keypoints_at_pose(robot, frame, pos, quat)))
-                else:
-                    pose = frame_pose(robot, jnp.asarray(p.goal_q, jnp.float32), frame)
-                    goals.append((pose.translation(), pose.rotation().wxyz, keypoints(robot, jnp.asarray(p.goal_q, jnp.float32))))
+                    pos[k], quat[k] = p.goal_pose
             args = (
                 stack([p.scene.pad(**COMMON_CAPACITY) for p in padded]),
                 jnp.asarray(np.stack([p.start_q for p in padded]), jnp.float32),
-                *(jnp.stack([g[k] for g in goals]) for k in range(3)),
+                jnp.asarray(pos),
+                jnp.asarray(quat),
+                jax.vmap(lambda x, r: keypoints_at_pose(robot, frame, x, r))(jnp.asarray(pos), jnp.asarray(quat)),  # keypoints ride on the frame
             )
             if self._reaction_ms is None:
                 self._reaction_ms = self.reaction_ms(*jax.tree.map(lambda a: a[0], args))

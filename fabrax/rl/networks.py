@@ -95,6 +95,11 @@ def ppo_observation(obs: dict[str, jax.Array]) -> dict[str, jax.Array]:
     return {("pixels/" + k if k in GRIDS else k): v for k, v in obs.items()}
 
 
+def env_observation(obs: dict) -> dict:
+    """`ppo_observation`'s inverse: the env's own names."""
+    return {k.removeprefix("pixels/"): v for k, v in obs.items()}
+
+
 def _flat_apply(module: nn.Module, shapes: dict[str, tuple[int, ...]], variables, obs: dict[str, jax.Array]) -> jax.Array:
     """Apply `module` to observations with any leading batch axes (PPO's unrolls are (B, T, ...))."""
     lead = obs["q"].shape[: obs["q"].ndim - len(shapes["q"])]

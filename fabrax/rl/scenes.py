@@ -75,11 +75,10 @@ def build_pool(robot: Robot, cfg: EnvConfig, problems: list[Problem] = (), frame
         if not p.valid:
             continue
         goal = p.goal_q
-        if goal is None:  # a pose goal: the pool stores goals as configurations, so take the IK solution nearest the start
-            solutions = generators.ik_configs(robot, p.scene, frame, *p.goal_pose, rng, seeds=128, margin=0.005, near=np.asarray(p.start_q))
-            if len(solutions) == 0:
+        if goal is None:  # a pose goal: the pool stores goals as configurations
+            goal = generators.ik_goal(robot, p, frame, rng)
+            if goal is None:
                 continue
-            goal = solutions[0]
         rows.append((p.name, p.scene, np.asarray(p.start_q), np.asarray(goal), True))
     for kind, n in sc.generated:
         for k in range(n):

@@ -34,7 +34,7 @@ import jax
 from fabrax.config import load
 from fabrax.rl.config import env_config
 from fabrax.rl.env import make_env
-from fabrax.rl.networks import GRIDS, make_guide_networks
+from fabrax.rl.networks import make_guide_networks, ppo_observation
 from fabrax.rl.wrappers import FixedStage, wrap_for_training
 
 log = logging.getLogger("fabrax.rl")
@@ -225,7 +225,7 @@ def train(settings: dict[str, Any], run_dir: str | Path, resume: bool = False, d
     per_device = None if cur["max_steps"] is None else cur["max_steps"] / jax.local_device_count()
     wrap = functools.partial(wrap_for_training, cells=cur["cells"], start_stage=start_stage, max_steps=per_device)
     ckpt_dir = run_dir / "checkpoints"
-    obs_size = {("pixels/" + k if k in GRIDS else k): v for k, v in env.observation_size.items()}
+    obs_size = ppo_observation(env.observation_size)
     t0 = time.time()
 
     def record(step: int, metrics: dict):
@@ -238,7 +238,8 @@ def train(settings: dict[str, Any], run_dir: str | Path, resume: bool = False, d
         with open(run_dir / "progress.jsonl", "a") as f:
             f.write(json.dumps(line) + "\n")
         log.info("step %d %s: %s", line["step"], kind, ", ".join(f"{k} {row[k]:.3g}" for k in CURVES if k in row))
-        plot_curves(run_dir)
+        if kind == "eval":
+            plot_curves(run_dir)
 
     def save(step: int, make_policy, params):
         if step == 0:
@@ -262,4 +263,5 @@ def train(settings: dict[str, Any], run_dir: str | Path, resume: bool = False, d
         restore_checkpoint_path=None if restore is None else str(restore),
         **kwargs,
     )
+    plot_curves(run_dir)
     return make_policy, params, metrics

@@ -24,7 +24,7 @@ import jax.numpy as jnp
 from brax.envs.base import State, Wrapper
 from brax.envs.wrappers.training import EpisodeWrapper, VmapWrapper
 
-from fabrax.rl.networks import GRIDS, ppo_observation
+from fabrax.rl.networks import env_observation, ppo_observation
 
 KEPT = ("steps", "truncation", "episode_done", "episode_metrics", "stage", "cells_mean", "stage1_steps", "reset_key")  # survive an auto-reset
 
@@ -39,7 +39,7 @@ class EpisodeSums(Wrapper):
         return state.replace(obs=ppo_observation(state.obs), info=info, metrics={**state.metrics, "stage_per_step": jnp.zeros(())})
 
     def step(self, state: State, action: jax.Array) -> State:
-        nxt = self.env.step(state.replace(obs=self._env_observation(state.obs)), action)
+        nxt = self.env.step(state.replace(obs=env_observation(state.obs)), action)
         cells, dist = nxt.metrics["unique_cells"], nxt.metrics["keypoint_distance"]
         metrics = {
             **state.metrics,
@@ -51,13 +51,9 @@ class EpisodeSums(Wrapper):
         info = {**nxt.info, "last_cells": cells, "last_distance": dist}
         return nxt.replace(obs=ppo_observation(nxt.obs), metrics=metrics, info=info)
 
-    @staticmethod
-    def _env_observation(obs):
-        return {k.removeprefix("pixels/"): v for k, v in obs.items()}
-
     @property
     def observation_size(self):
-        return {("pixels/" + k if k in GRIDS else k): v for k, v in self.env.observation_size.items()}
+        return ppo_observation(self.env.observation_size)
 
 
 class CurriculumReset(Wrapper):
