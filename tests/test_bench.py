@@ -1,5 +1,6 @@
 """The benchmark harness: exact checker, metrics, retiming, MBM loader, generators and the CLI."""
 
+import dataclasses
 import importlib.util
 import json
 import subprocess
@@ -296,3 +297,26 @@ def test_bench_cli_without_data_says_what_to_set(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # no ../shared/data from here
     with pytest.raises(SystemExit, match="set FABRAX_DATA or data_dir="):
         main(["method=gf", "problems=mbm", "classes=[box]", "limit=1", f"out={tmp_path}", "progress=false"])
+
+
+def test_a_problem_a_method_refuses_fails_alone(panda):
+    """One problem a method raises a ValueError on is a failed row with the error; the others stand."""
+    from fabrax.bench.methods import Solution
+    from fabrax.bench.runner import run
+    from fabrax.problems.generators import demo_problem
+
+    base = demo_problem(panda)
+    problems = [dataclasses.replace(base, name=f"demo/{k}") for k in range(3)]
+
+    class Straight:
+        name, batch_size, dt = "straight", 3, 0.01
+
+        def solve(self, robot, part):
+            if any(p.name == "demo/1" for p in part):
+                raise ValueError("demo/1: refused")
+            return [Solution(np.linspace(p.start_q, p.goal_q, 50), self.dt, 0.1) for p in part]
+
+    rows = {r["problem"]: r for r in run(Straight(), panda, problems, progress=False)}
+    assert set(rows) == {"demo/0", "demo/1", "demo/2"}
+    assert rows["demo/1"]["info"]["error"] == "demo/1: refused" and not rows["demo/1"]["success"]
+    assert rows["demo/0"]["reached"] and rows["demo/2"]["reached"] and "error" not in rows["demo/0"]["info"]

@@ -110,6 +110,15 @@ def make_method(cfg: dict, robot):
         return GFCSMethod(fabric, params, gfcs_cfg, m["name"], tuple(m["report"]), cfg["seed"], **learned)
     if kind == "ompl":
         return OMPLMethod(dt=cfg["dt"], **m)
+    if kind == "vamp":
+        from fabrax.bench.methods import VAMPMethod
+        from fabrax.bench.vamp import robot_module
+
+        try:
+            robot_module(robot)
+        except ValueError as e:
+            raise SystemExit(f"fabrax bench: {e}") from None
+        return VAMPMethod(dt=cfg["dt"], **m)
     if kind == "rl_guide":
         return rl_guide_method(m, cfg, robot)
     raise SystemExit(f"fabrax bench: unknown method type '{kind}'")

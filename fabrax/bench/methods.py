@@ -1,4 +1,4 @@
-"""The method protocol and the built-in methods: the pure geometric fabric and OMPL planners.
+"""The method protocol and the built-in methods: the pure geometric fabric, GFCS, the RL guide, OMPL and VAMP planners.
 
 A method takes a robot and a list of problems and returns one `Solution` per
 problem: a joint trajectory sampled every `dt`, the wall time it took to
@@ -118,6 +118,35 @@ class OMPLMethod:
                 out.append(Solution(p.start_q[None], self.dt, elapsed, info["compile_s"], info))
                 continue
             out.append(Solution(retime(robot, path, self.dt), self.dt, elapsed, info["compile_s"], {**info, "waypoints": len(path)}))
+        return out
+
+
+@dataclasses.dataclass
+class VAMPMethod:
+    """A VAMP planner (rrtc, prm, fcit, aorrtc) with VAMP's own robot model and SIMD collision checks
+    (`fabrax.bench.vamp`), its path simplification, then rest-to-rest retiming (`retime`). Planning
+    time is VAMP's own solve plus simplification time; the harness re-checks the trajectory with
+    the benchmark's checker."""
+
+    planner: str = "rrtc"
+    iterations: int = 100_000
+    simplify: bool = True
+    padding: float = 0.0  # m added to every obstacle VAMP plans around
+    name: str = "vamp_rrtc"
+    dt: float = 0.01
+
+    def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]:
+        from fabrax.bench.retime import retime
+        from fabrax.bench.vamp import plan
+
+        out = []
+        for p in problems:
+            path, info = plan(robot, p, self.planner, self.iterations, self.simplify, self.padding)
+            elapsed = info["solve_s"] + info["simplify_s"]
+            if path is None:
+                out.append(Solution(p.start_q[None], self.dt, elapsed, 0.0, info))
+                continue
+            out.append(Solution(retime(robot, path, self.dt), self.dt, elapsed, 0.0, {**info, "waypoints": len(path)}))
         return out
 
 
