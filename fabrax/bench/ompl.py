@@ -3,7 +3,9 @@
 Planners run on the joint space with the benchmark's own checker: a state is
 valid when its collision spheres clear the scene and each other and it is
 within the joint limits; a motion validator checks every edge at the checker's
-resolution in one batched, jitted call. OMPL 1.7.0's Python module crashes
+resolution. Both call the numba-compiled copy of the checker
+(`fabrax.problems.native_checker`), not JAX, so that a callback costs
+microseconds, as OMPL's C++ users' checkers do. OMPL 1.7.0's Python module crashes
 while the interpreter shuts down, so programs that load it end with
 `os._exit` (see `fabrax.bench.cli`).
 """
@@ -12,14 +14,11 @@ from __future__ import annotations
 
 import time
 
-import jax.numpy as jnp
 import numpy as np
 
-from fabrax.problems.checker import densify
-from fabrax.problems.clearance import state_clearances
+from fabrax.problems.native_checker import NativeChecker
 from fabrax.problems.problem import Problem
 from fabrax.robot.robot import Robot
-from fabrax.scene import COMMON_CAPACITY
 
 PLANNERS = ("RRTConnect", "BITstar", "BiEST", "AITstar", "RRTstar", "PRM")
 
@@ -33,35 +32,30 @@ def available() -> tuple[str, ...]:
     return tuple(p for p in PLANNERS if hasattr(og, p))
 
 
-BUCKETS = tuple(1 << k for k in range(10))  # batch sizes of validity calls (1 ... 512 states)
-
-
 class _Checker:
-    """Batched validity of joint configurations; batch sizes are padded to powers of two and scenes
-    to one capacity, so that every call reuses a compiled function."""
+    """State and motion validity from the native (numba) checker, equal to the exact checker: no JAX
+    dispatch per OMPL callback. A motion's states at the checker's resolution are checked in order,
+    stopping at the first invalid one."""
 
     def __init__(self, robot: Robot, problem: Problem, resolution: float):
-        self.robot, self.scene, self.resolution = robot, problem.scene.pad(**COMMON_CAPACITY), resolution
-        self.calls = 0
+        self.native, self.resolution = NativeChecker(robot, problem.scene), resolution
+        self.calls = self.states = 0
 
     def warm_up(self) -> None:
-        """Compile every batch size before the planner's clock starts."""
-        for b in BUCKETS:
-            np.asarray(state_clearances(self.robot, self.scene, jnp.zeros((b, self.robot.dof), jnp.float32))[0])
+        """Compile (or load numba's cache) before the planner's clock starts."""
+        self.native.all_valid(np.zeros((1, self.native.dof)))
 
-    def valid(self, qs: np.ndarray) -> np.ndarray:
+    def valid(self, q: np.ndarray) -> bool:
         self.calls += 1
-        n = len(qs)
-        size = max(1 << max(int(n - 1).bit_length(), 0), 1)
-        if size > BUCKETS[-1]:
-            return np.concatenate([self.valid(qs[k : k + BUCKETS[-1]]) for k in range(0, n, BUCKETS[-1])])
-        padded = np.concatenate([qs, np.repeat(qs[-1:], size - n, 0)]) if size > n else qs
-        env, slf, ok = state_clearances(self.robot, self.scene, jnp.asarray(padded, jnp.float32))
-        return np.asarray((env >= 0.0) & (slf >= 0.0) & ok)[:n]
+        self.states += 1
+        return self.native.all_valid(q)
 
     def motion(self, a: np.ndarray, b: np.ndarray) -> bool:
-        dense, _ = densify(np.stack([a, b]), self.resolution)
-        return bool(self.valid(dense).all())
+        steps = max(int(np.ceil(np.abs(b - a).max() / self.resolution)), 1)
+        dense = a + (np.arange(1, steps + 1) / steps)[:, None] * (b - a)  # the end states; the start was checked
+        self.calls += 1
+        self.states += steps
+        return self.native.all_valid(dense)
 
 
 def plan(robot: Robot, problem: Problem, planner: str, budget_s: float, simplify: bool, resolution: float):
@@ -90,7 +84,7 @@ def plan(robot: Robot, problem: Problem, planner: str, budget_s: float, simplify
     check.warm_up()
     compile_s = time.perf_counter() - t0
     as_array = lambda s: np.array([s[j] for j in range(n)])  # noqa: E731
-    si.setStateValidityChecker(ob.StateValidityCheckerFn(lambda s: bool(check.valid(as_array(s)[None])[0])))
+    si.setStateValidityChecker(ob.StateValidityCheckerFn(lambda s: check.valid(as_array(s))))
 
     class Motion(ob.MotionValidator):
         def checkMotion(self, s1, s2, *last_valid):
@@ -115,11 +109,11 @@ def plan(robot: Robot, problem: Problem, planner: str, budget_s: float, simplify
     solve_s = time.perf_counter() - t0
     info = {"planner": planner, "status": str(status), "solve_s": solve_s, "simplify_s": 0.0, "compile_s": compile_s}
     if not pdef.hasExactSolution():
-        return None, {**info, "validity_calls": check.calls}
+        return None, {**info, "validity_calls": check.calls, "states_checked": check.states}
     path = pdef.getSolutionPath()
     if simplify:
         t0 = time.perf_counter()
         og.PathSimplifier(si).simplifyMax(path)
         info["simplify_s"] = time.perf_counter() - t0
     waypoints = np.array([as_array(path.getState(i)) for i in range(path.getStateCount())])
-    return waypoints, {**info, "validity_calls": check.calls}
+    return waypoints, {**info, "validity_calls": check.calls, "states_checked": check.states}
