@@ -121,4 +121,3 @@ def plan(robot: Robot, problem: Problem, planner: str, iterations: int, simplify
     waypoints = np.asarray(path.numpy(), np.float64)
     clipped = np.clip(waypoints, np.asarray(robot.lower), np.asarray(robot.upper))
     return clipped, {**info, "clipped_rad": float(np.abs(clipped - waypoints).max())}
-

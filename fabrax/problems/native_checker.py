@@ -163,7 +163,9 @@ def _clearances(qs, rf, ri, sf, si, tol):
     rs, ts, x = np.empty((n + 1, 3, 3)), np.empty((n + 1, 3)), np.empty((frame.shape[0], 3))
     env, slf, ok = np.empty(qs.shape[0]), np.empty(qs.shape[0]), np.empty(qs.shape[0], np.bool_)
     for k in range(qs.shape[0]):
-        env[k], slf[k], ok[k] = _one(qs[k], axis, origin_r, origin_t, revolute, parent, frame, local, radius, pair_i, pair_j, lower, upper, scene, tol, rs, ts, x, False)
+        env[k], slf[k], ok[k] = _one(
+            qs[k], axis, origin_r, origin_t, revolute, parent, frame, local, radius, pair_i, pair_j, lower, upper, scene, tol, rs, ts, x, False
+        )
     return env, slf, ok
 
 
@@ -175,7 +177,9 @@ def _all_valid(qs, rf, ri, sf, si, tol):
     n = qs.shape[1]
     rs, ts, x = np.empty((n + 1, 3, 3)), np.empty((n + 1, 3)), np.empty((frame.shape[0], 3))
     for k in range(qs.shape[0]):
-        env, slf, ok = _one(qs[k], axis, origin_r, origin_t, revolute, parent, frame, local, radius, pair_i, pair_j, lower, upper, scene, tol, rs, ts, x, True)
+        env, slf, ok = _one(
+            qs[k], axis, origin_r, origin_t, revolute, parent, frame, local, radius, pair_i, pair_j, lower, upper, scene, tol, rs, ts, x, True
+        )
         if not (env >= 0.0 and slf >= 0.0 and ok):
             return False
     return True
@@ -189,7 +193,9 @@ class NativeChecker:
         flat = lambda *arrays, dtype=np.float64: np.ascontiguousarray(np.concatenate([np.asarray(a, dtype).ravel() for a in arrays]))  # noqa: E731
         self.dof = robot.dof
         counts = (robot.dof, len(robot.sphere_radius), len(robot.pair_i))
-        self.rf = flat(robot.joint_axis, robot.joint_origin_r, robot.joint_origin_t, robot.sphere_local, robot.sphere_radius, robot.lower, robot.upper)
+        self.rf = flat(
+            robot.joint_axis, robot.joint_origin_r, robot.joint_origin_t, robot.sphere_local, robot.sphere_radius, robot.lower, robot.upper
+        )
         self.ri = flat(counts, robot.joint_revolute, robot.joint_parent, robot.sphere_frame, robot.pair_i, robot.pair_j, dtype=np.int64)
         arrays = _scene_arrays(scene)
         self.sf = flat(*arrays)

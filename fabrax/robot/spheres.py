@@ -159,7 +159,7 @@ def fitted_spheres(tree: KinematicTree, budget: int, tolerance: float = 0.001, s
     spheres = fit_spheres(tree, budget, tolerance, spacing, seed)
     try:
         cache.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp")
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")  # parallel test workers fit the same set
         tmp.write_text(json.dumps(spheres))
         tmp.replace(path)
     except OSError:
