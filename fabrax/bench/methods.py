@@ -92,6 +92,17 @@ class FabricMethod:
         return out
 
 
+def _planned(robot: Robot, problem: Problem, path, info: dict, dt: float) -> Solution:
+    """A planner's path as a solution: retimed rest to rest (`retime`), or the start when none was
+    found; plan time is its solve plus simplification time."""
+    from fabrax.bench.retime import retime
+
+    elapsed = info["solve_s"] + info["simplify_s"]
+    if path is None:
+        return Solution(problem.start_q[None], dt, elapsed, info.get("compile_s", 0.0), info)
+    return Solution(retime(robot, path, dt), dt, elapsed, info.get("compile_s", 0.0), {**info, "waypoints": len(path)})
+
+
 @dataclasses.dataclass
 class OMPLMethod:
     """An OMPL planner (RRTConnect, BITstar, BiEST, AITstar, ...) on the joint space, state and motion
@@ -108,17 +119,8 @@ class OMPLMethod:
 
     def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]:
         from fabrax.bench.ompl import plan
-        from fabrax.bench.retime import retime
 
-        out = []
-        for p in problems:
-            path, info = plan(robot, p, self.planner, self.budget_s, self.simplify, self.resolution)
-            elapsed = info["solve_s"] + info["simplify_s"]
-            if path is None:
-                out.append(Solution(p.start_q[None], self.dt, elapsed, info["compile_s"], info))
-                continue
-            out.append(Solution(retime(robot, path, self.dt), self.dt, elapsed, info["compile_s"], {**info, "waypoints": len(path)}))
-        return out
+        return [_planned(robot, p, *plan(robot, p, self.planner, self.budget_s, self.simplify, self.resolution), self.dt) for p in problems]
 
 
 @dataclasses.dataclass
@@ -136,18 +138,9 @@ class VAMPMethod:
     dt: float = 0.01
 
     def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]:
-        from fabrax.bench.retime import retime
         from fabrax.bench.vamp import plan
 
-        out = []
-        for p in problems:
-            path, info = plan(robot, p, self.planner, self.iterations, self.simplify, self.padding)
-            elapsed = info["solve_s"] + info["simplify_s"]
-            if path is None:
-                out.append(Solution(p.start_q[None], self.dt, elapsed, 0.0, info))
-                continue
-            out.append(Solution(retime(robot, path, self.dt), self.dt, elapsed, 0.0, {**info, "waypoints": len(path)}))
-        return out
+        return [_planned(robot, p, *plan(robot, p, self.planner, self.iterations, self.simplify, self.padding), self.dt) for p in problems]
 
 
 @dataclasses.dataclass

@@ -22,11 +22,13 @@ from fabrax.scene.sdf import FAR
 
 
 @numba.njit(cache=True, fastmath=False)
-def _one(q, axis, origin_r, origin_t, revolute, parent, frame, local, radius, pair_i, pair_j, lower, upper, scene, tol, rs, ts, x, early):
-    """(env clearance, self clearance, within limits) of one configuration; rs, ts, x are scratch.
+def _one(q, robot, scene, tol, scratch, early):
+    """(env clearance, self clearance, within limits) of one configuration (scratch: `_scratch`).
     early: only the signs matter, so the first collision ends the check (its clearance -1) and
     primitives whose bounding sphere a collision sphere clears are skipped."""
+    axis, origin_r, origin_t, revolute, parent, frame, local, radius, pair_i, pair_j, lower, upper = robot
     bc, br, bh, bb, cc, cr, crad, ch, cb, sc, srad = scene
+    rs, ts, x = scratch
     n = q.shape[0]
     ok = True
     for i in range(n):
@@ -156,16 +158,19 @@ def _unpack(rf, ri, sf, si):
 
 
 @numba.njit(cache=True)
+def _scratch(robot):
+    """Frame rotations, translations and sphere centres of one configuration, reused across states."""
+    n, spheres = robot[0].shape[0], robot[5].shape[0]
+    return np.empty((n + 1, 3, 3)), np.empty((n + 1, 3)), np.empty((spheres, 3))
+
+
+@numba.njit(cache=True)
 def _clearances(qs, rf, ri, sf, si, tol):
     robot, scene = _unpack(rf, ri, sf, si)
-    axis, origin_r, origin_t, revolute, parent, frame, local, radius, pair_i, pair_j, lower, upper = robot
-    n = qs.shape[1]
-    rs, ts, x = np.empty((n + 1, 3, 3)), np.empty((n + 1, 3)), np.empty((frame.shape[0], 3))
+    scratch = _scratch(robot)
     env, slf, ok = np.empty(qs.shape[0]), np.empty(qs.shape[0]), np.empty(qs.shape[0], np.bool_)
     for k in range(qs.shape[0]):
-        env[k], slf[k], ok[k] = _one(
-            qs[k], axis, origin_r, origin_t, revolute, parent, frame, local, radius, pair_i, pair_j, lower, upper, scene, tol, rs, ts, x, False
-        )
+        env[k], slf[k], ok[k] = _one(qs[k], robot, scene, tol, scratch, False)
     return env, slf, ok
 
 
@@ -173,13 +178,9 @@ def _clearances(qs, rf, ri, sf, si, tol):
 def _all_valid(qs, rf, ri, sf, si, tol):
     """Whether every configuration is collision-free and within limits, stopping at the first that is not."""
     robot, scene = _unpack(rf, ri, sf, si)
-    axis, origin_r, origin_t, revolute, parent, frame, local, radius, pair_i, pair_j, lower, upper = robot
-    n = qs.shape[1]
-    rs, ts, x = np.empty((n + 1, 3, 3)), np.empty((n + 1, 3)), np.empty((frame.shape[0], 3))
+    scratch = _scratch(robot)
     for k in range(qs.shape[0]):
-        env, slf, ok = _one(
-            qs[k], axis, origin_r, origin_t, revolute, parent, frame, local, radius, pair_i, pair_j, lower, upper, scene, tol, rs, ts, x, True
-        )
+        env, slf, ok = _one(qs[k], robot, scene, tol, scratch, True)
         if not (env >= 0.0 and slf >= 0.0 and ok):
             return False
     return True
