@@ -54,7 +54,7 @@ def main() -> None:
         padded = scene.pad(**COMMON_CAPACITY)
         native = NativeChecker(robot, scene)
         qs = rng.uniform(np.asarray(robot.lower), np.asarray(robot.upper), (4096, robot.dof))
-        edge = problem.start_q + np.linspace(0.0, 1.0, 32)[:, None] * (problem.goal_q - problem.start_q if problem.goal_q is not None else 0.3)
+        edge = problem.start_q + np.linspace(0.0, 0.3, 32)[:, None]  # every joint 0.3 rad from the start
         jax_check = lambda q: np.asarray(state_clearances(robot, padded, jnp.asarray(q, jnp.float32))[0])  # noqa: E731
         for q in (qs[:1], edge, qs):
             jax_check(q)

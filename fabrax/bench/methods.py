@@ -133,7 +133,7 @@ class VAMPMethod:
     planner: str = "rrtc"
     iterations: int = 100_000
     simplify: bool = True
-    padding: float = 0.0  # m added to every obstacle VAMP plans around
+    padding: float = 0.02  # m added to the obstacles VAMP plans around (configs/method/vamp_*.yaml: chosen on train problems)
     name: str = "vamp_rrtc"
     dt: float = 0.01
 

@@ -84,7 +84,9 @@ def goal_errors(robot: Robot, problem: Problem, q_final: np.ndarray, frame: str)
     target_pos, target_quat = _goal_pose(robot, problem, frame)
     target_quat = np.asarray(target_quat) / np.linalg.norm(target_quat)
     dot = abs(float(np.dot(quat, target_quat)))
-    kp = float(_keypoint_error(robot, jnp.asarray(q_final, jnp.float32), *(jnp.asarray(a, jnp.float32) for a in (target_pos, target_quat, pos, quat))))
+    kp = float(
+        _keypoint_error(robot, jnp.asarray(q_final, jnp.float32), *(jnp.asarray(a, jnp.float32) for a in (target_pos, target_quat, pos, quat)))
+    )
     return joint, float(np.linalg.norm(pos - target_pos)), float(2.0 * np.arccos(min(dot, 1.0))), kp
 
 

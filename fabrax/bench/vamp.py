@@ -20,15 +20,6 @@ from fabrax.robot.robot import Robot
 PLANNERS = ("rrtc", "prm", "fcit", "aorrtc")
 
 
-def available() -> tuple[str, ...]:
-    """VAMP's robots (empty if VAMP is not installed)."""
-    try:
-        import vamp
-    except ImportError:
-        return ()
-    return tuple(vamp.robots)
-
-
 def robot_module(robot: Robot):
     """VAMP's model of `robot`, refused in one line when VAMP has none with the same joints."""
     try:
@@ -52,14 +43,16 @@ def environment(scene, padding: float = 0.0):
     if int(np.asarray(scene.cloud.mask).sum()):
         raise ValueError("VAMP baselines take primitive scenes; this scene has a point cloud")
     env = vamp.Environment()
-    rpy = lambda quat: [float(a) for a in jaxlie.SO3(np.asarray(quat, np.float64)).as_rpy_radians()]  # noqa: E731
-    used = lambda prims, *fields: zip(*(np.asarray(getattr(prims, f))[np.asarray(prims.mask, bool)] for f in fields), strict=True)  # noqa: E731
-    for center, quat, half in used(scene.cuboids, "center", "quat", "half_extents"):
-        env.add_cuboid(vamp.Cuboid(center.tolist(), rpy(quat), (half + padding).tolist()))
-    for center, quat, radius, half in used(scene.cylinders, "center", "quat", "radius", "half_length"):
-        env.add_capsule(vamp.Cylinder(center.tolist(), rpy(quat), float(radius + padding), 2.0 * float(half + padding)))
-    for center, radius in used(scene.spheres, "center", "radius"):
-        env.add_sphere(vamp.Sphere(center.tolist(), float(radius + padding)))
+    rpy = lambda quat: np.stack(jaxlie.SO3(np.asarray(quat, np.float64).reshape(-1, 4)).as_rpy_radians(), -1).tolist()  # noqa: E731  (one call per kind)
+    used = lambda prims, *fields: [np.asarray(getattr(prims, f))[np.asarray(prims.mask, bool)] for f in fields]  # noqa: E731
+    center, quat, half = used(scene.cuboids, "center", "quat", "half_extents")
+    for c, e, h in zip(center, rpy(quat), half, strict=True):
+        env.add_cuboid(vamp.Cuboid(c.tolist(), e, (h + padding).tolist()))
+    center, quat, radius, half = used(scene.cylinders, "center", "quat", "radius", "half_length")
+    for c, e, r, h in zip(center, rpy(quat), radius, half, strict=True):
+        env.add_capsule(vamp.Cylinder(c.tolist(), e, float(r + padding), 2.0 * float(h + padding)))
+    for c, r in zip(*used(scene.spheres, "center", "radius"), strict=True):
+        env.add_sphere(vamp.Sphere(c.tolist(), float(r + padding)))
     return env
 
 

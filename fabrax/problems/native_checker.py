@@ -21,14 +21,14 @@ from fabrax.scene import Scene
 from fabrax.scene.sdf import FAR
 
 
-@numba.njit(cache=True, fastmath=False)
+@numba.njit(cache=True)
 def _one(q, robot, scene, tol, scratch, early):
     """(env clearance, self clearance, within limits) of one configuration (scratch: `_scratch`).
     early: only the signs matter, so the first collision ends the check (its clearance -1) and
     primitives whose bounding sphere a collision sphere clears are skipped."""
     axis, origin_r, origin_t, revolute, parent, frame, local, radius, pair_i, pair_j, lower, upper = robot
     bc, br, bh, bb, cc, cr, crad, ch, cb, sc, srad = scene
-    rs, ts, x = scratch
+    rs, ts, x, m, lr, k, mt, lt = scratch
     n = q.shape[0]
     ok = True
     for i in range(n):
@@ -37,16 +37,12 @@ def _one(q, robot, scene, tol, scratch, early):
         return -1.0, -1.0, False
     rs[0] = np.eye(3)
     ts[0] = 0.0
-    m = np.empty((3, 3))
-    lr = np.empty((3, 3))
-    mt = np.empty(3)
-    lt = np.empty(3)
     for i in range(n):
         a = axis[i]
         if revolute[i]:
             s, c = np.sin(q[i]), np.cos(q[i])
             aa = a[0] * a[0] + a[1] * a[1] + a[2] * a[2]
-            k = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+            k[0, 1], k[0, 2], k[1, 0], k[1, 2], k[2, 0], k[2, 1] = -a[2], a[1], a[2], -a[0], -a[1], a[0]  # the skew matrix of a
             for r in range(3):
                 for col in range(3):
                     kk = a[r] * a[col] - (aa if r == col else 0.0)  # K K = a a^T - |a|^2 I
@@ -159,9 +155,19 @@ def _unpack(rf, ri, sf, si):
 
 @numba.njit(cache=True)
 def _scratch(robot):
-    """Frame rotations, translations and sphere centres of one configuration, reused across states."""
+    """Frame rotations, translations and sphere centres of one configuration, and one joint's motion
+    (rotation, local rotation, skew matrix, translation, local translation), reused across states."""
     n, spheres = robot[0].shape[0], robot[5].shape[0]
-    return np.empty((n + 1, 3, 3)), np.empty((n + 1, 3)), np.empty((spheres, 3))
+    return (
+        np.empty((n + 1, 3, 3)),
+        np.empty((n + 1, 3)),
+        np.empty((spheres, 3)),
+        np.empty((3, 3)),
+        np.empty((3, 3)),
+        np.zeros((3, 3)),
+        np.empty(3),
+        np.empty(3),
+    )
 
 
 @numba.njit(cache=True)
