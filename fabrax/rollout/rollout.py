@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from fabrax import validate
+from fabrax import sharding, validate
 from fabrax.fabrics.fabric import Fabric, Params
 from fabrax.fabrics.limits import LIMITERS, acceleration_box
 from fabrax.fabrics.spec import solve
@@ -244,7 +244,8 @@ def rollout_population(
         clean = jnp.sum(c.reached & (c.clearance >= 0.0))
         return (s[0][0] < n_chunks) & ~jnp.all(c.done) & (clean < enough)
 
-    state = jax.lax.while_loop(cond, lambda s: jax.vmap(body)(params_seqs, s), jax.vmap(init)(params_seqs))
+    params_seqs = sharding.constrain(params_seqs)  # the population over the local devices
+    state = jax.lax.while_loop(cond, lambda s: sharding.constrain(jax.vmap(body)(params_seqs, s)), sharding.constrain(jax.vmap(init)(params_seqs)))
     return jax.vmap(finish)(state)
 
 
@@ -253,7 +254,9 @@ def rollout(fabric: Fabric, params: Params, scene: Scene, q0, qd0, reached: Reac
     return rollout_sequence(fabric, jax.tree.map(lambda a: a[None], params), scene, q0, qd0, reached, **kwargs)
 
 
-def reach(fabric, params: Params, problems: dict, aim: str = "joint", stop: str = "goal", settle: float | None = None, **kwargs) -> Trajectory:
+def reach(
+    fabric, params: Params, problems: dict, aim: str = "joint", stop: str = "goal", settle: float | None = None, sub_batch: int = 128, **kwargs
+) -> Trajectory:
     """Roll the fabric out toward each problem's goal, batched with `jax.vmap`.
 
     `problems` is `fabrax.problems.batch(...)`; `fabric` an `ArmFabric`; `aim` as
@@ -261,7 +264,8 @@ def reach(fabric, params: Params, problems: dict, aim: str = "joint", stop: str 
     (`reached`), stop="posture" only once the null-space posture has arrived too
     (`posture_reached`); with `settle` (rad/s) the test also needs every joint
     slower than that, so that a rollout ends at rest, not passing through the goal.
-    Returns a batched `Trajectory`.
+    Returns a batched `Trajectory`. The problems split over the local devices, and a device's share
+    larger than `sub_batch` runs as consecutive sub-batches of that size (`fabrax.sharding.chunked`).
     """
     if stop not in ("goal", "posture"):
         raise ValueError(f"stop must be 'goal' or 'posture', got '{stop}'")
@@ -276,4 +280,5 @@ def reach(fabric, params: Params, problems: dict, aim: str = "joint", stop: str 
         return rollout(fabric, p, scene, start_q, start_qd, test, **kwargs)
 
     b = problems
-    return jax.vmap(one)(b["start_q"], b["start_qd"], b["joint_goal"], b["goal_q"], b["goal_pos"], b["goal_quat"], b["scene"])
+    args = (b["start_q"], b["start_qd"], b["joint_goal"], b["goal_q"], b["goal_pos"], b["goal_quat"], b["scene"])
+    return sharding.chunked(jax.vmap(one), sub_batch)(*args)

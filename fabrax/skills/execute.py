@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from fabrax import sharding
 from fabrax.robot.kinematics import sphere_centers
 from fabrax.rollout import rollout_sequence
 from fabrax.skills.demos import ik_path
@@ -64,4 +65,4 @@ def follower(fabric, params, cfg: FollowConfig = FollowConfig()):
         seq = jax.vmap(lambda g: fabric.with_joint_goal(params, g))(path[idx])
         return rollout_sequence(fabric, seq, scene, path[0], jnp.zeros_like(path[0]), fabric.reached, dt=cfg.dt, steps=steps, via=via)
 
-    return jax.jit(jax.vmap(run, in_axes=(0, None)))
+    return jax.jit(lambda paths, scene: jax.vmap(run, in_axes=(0, None))(sharding.constrain(paths), scene))

@@ -1,0 +1,90 @@
+"""Batches split over devices give the numbers of one device (`fabrax.sharding`).
+
+The same script runs in two fresh processes, with one and with two XLA host
+devices (FABRAX_CPU_DEVICES), on a rollout batch (also run as sub-batches of one
+arm), a GFCS-style population and a geodesic batch; the two-device run must
+actually split them.
+"""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from fabrax import sharding
+
+SCRIPT = textwrap.dedent(
+    """
+    import json
+    import jax, jax.numpy as jnp, numpy as np
+    import fabrax
+    from fabrax import config, scene as sc
+    from fabrax.problems import batch
+    from fabrax.problems.generators import flying_cuboids, random_problems
+    from fabrax.rollout import reach, rollout_population
+    from fabrax.skills import geodesic
+
+    robot = config.load_robot()
+    fab, params = config.load_fabric(robot)
+    rng = np.random.default_rng(3)
+    problems = random_problems(robot, [flying_cuboids(rng) for _ in range(4)], seed=3)
+    tr = jax.jit(lambda b: reach(fab, params, b, "joint", dt=0.01, steps=60))(batch(problems))
+    sub = jax.jit(lambda b: reach(fab, params, b, "joint", dt=0.01, steps=60, sub_batch=1))(batch(problems))  # sub-batches of one
+
+    goals = jnp.asarray(np.random.default_rng(4).uniform(-0.5, 0.5, (4, 7)) + np.asarray(problems[0].start_q), jnp.float32)
+    seqs = jax.vmap(lambda g: jax.tree.map(lambda a: a[None], fab.with_joint_goal(params, g)))(goals)
+    pop = jax.jit(lambda s: rollout_population(fab, s, problems[0].scene, problems[0].start_q, jnp.zeros(7), fab.reached, dt=0.01, steps=60))(seqs)
+
+    bump = lambda args, z, v: jnp.sum(v * v) * (1.0 + args * jnp.exp(-jnp.sum(z * z)))
+    starts = jnp.asarray([[-1.0, 0.1], [-1.0, -0.2], [-0.8, 0.3], [-1.2, 0.0]])
+    geo = geodesic.solver(bump, geodesic.GeodesicConfig(iters=50))(jnp.float32(4.0), starts, -starts[:, ::-1])
+
+    print(json.dumps({
+        "devices": jax.local_device_count(),
+        "split": [len(tr.q.sharding.device_set), len(pop.q.sharding.device_set), len(geo.energy.sharding.device_set)],
+        "reach_q": np.asarray(tr.q).tolist(), "reach_len": np.asarray(tr.length).tolist(), "sub_q": np.asarray(sub.q).tolist(),
+        "pop_q": np.asarray(pop.q).tolist(), "geo_energy": np.asarray(geo.energy).tolist(),
+    }))
+    """
+)
+
+
+def _run(devices: int) -> dict:
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    env["FABRAX_CPU_DEVICES"] = str(devices)
+    out = subprocess.run([sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_two_devices_split_the_batches_and_match_one_device():
+    one, two = _run(1), _run(2)
+    assert one["devices"] == 1 and two["devices"] == 2
+    assert one["split"] == [1, 1, 1] and two["split"] == [2, 2, 2]
+    assert one["reach_len"] == two["reach_len"]
+    for key in ("reach_q", "pop_q", "geo_energy", "sub_q"):
+        assert np.allclose(np.asarray(one[key]), np.asarray(two[key]), atol=1e-5), key
+    for run in (one, two):  # sub-batched rollouts are the whole batch's
+        assert np.allclose(np.asarray(run["sub_q"]), np.asarray(run["reach_q"]), atol=1e-5)
+
+
+def test_pad_repeats_the_last_entry_and_unpad_cuts_back():
+    tree = {"a": jnp.arange(5.0), "b": jnp.ones((5, 2))}
+    padded, n = sharding.pad(tree, 4)
+    assert n == 5 and padded["a"].shape == (8,) and padded["b"].shape == (8, 2)
+    assert np.all(np.asarray(padded["a"][5:]) == 4.0)
+    assert np.array_equal(np.asarray(sharding.unpad(padded, n)["a"]), np.arange(5.0))
+    with pytest.raises(ValueError, match="same leading"):
+        sharding.pad({"a": jnp.ones(3), "b": jnp.ones(4)}, 2)
+
+
+def test_bad_cpu_device_count_is_refused():
+    env = {**os.environ, "FABRAX_CPU_DEVICES": "two"}
+    env.pop("XLA_FLAGS", None)
+    out = subprocess.run([sys.executable, "-c", "import fabrax"], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode != 0 and "FABRAX_CPU_DEVICES must be a positive integer" in out.stderr
