@@ -5,7 +5,7 @@ limits, both attractors, damping, the acceleration/jerk limiter and the
 second-order integrator) steps inside a `lax.scan`, vmapped over arms, on a
 bookshelf-like scene of ~20 cuboids. The arms split over the local devices
 (`fabrax.sharding`; on a CPU, FABRAX_CPU_DEVICES=<cores> gives one device per core);
---chunk runs a device's share as consecutive sub-batches (`fabrax.sharding.chunked`),
+--chunk runs a device's share as consecutive sub-batches (`fabrax.sharding.batched`),
 which keeps each kernel's working set in cache. Writes JSON and a markdown table.
 
     python experiments/bench_fabric_step.py --out bench_out/fabric_step
@@ -74,7 +74,7 @@ def main() -> None:
         qd0 = jnp.zeros((b, 7), jnp.float32)
         share = b // jax.local_device_count() if b % jax.local_device_count() == 0 else b
         chunk = args.chunk if 0 < args.chunk < share and share % args.chunk == 0 else share
-        fn = jax.jit(sharding.chunked(jax.vmap(run), chunk))
+        fn = jax.jit(sharding.batched(jax.vmap(run), chunk))
         t0 = time.perf_counter()
         compiled = fn.lower(q0, qd0).compile()
         compile_s = time.perf_counter() - t0

@@ -2,8 +2,8 @@
 
 The same script runs in two fresh processes, with one and with two XLA host
 devices (FABRAX_CPU_DEVICES), on a rollout batch (also run as sub-batches of one
-arm), a GFCS-style population and a geodesic batch; the two-device run must
-actually split them.
+arm), a GFCS-style population, a geodesic batch and a batch of 5 padded to 6;
+the two-device run must actually split them.
 """
 
 import json
@@ -23,7 +23,7 @@ SCRIPT = textwrap.dedent(
     import json
     import jax, jax.numpy as jnp, numpy as np
     import fabrax
-    from fabrax import config, scene as sc
+    from fabrax import config, sharding
     from fabrax.problems import batch
     from fabrax.problems.generators import flying_cuboids, random_problems
     from fabrax.rollout import reach, rollout_population
@@ -43,10 +43,12 @@ SCRIPT = textwrap.dedent(
     bump = lambda args, z, v: jnp.sum(v * v) * (1.0 + args * jnp.exp(-jnp.sum(z * z)))
     starts = jnp.asarray([[-1.0, 0.1], [-1.0, -0.2], [-0.8, 0.3], [-1.2, 0.0]])
     geo = geodesic.solver(bump, geodesic.GeodesicConfig(iters=50))(jnp.float32(4.0), starts, -starts[:, ::-1])
+    odd = jax.jit(sharding.batched(jax.vmap(lambda z: jnp.sin(z) * jnp.sum(z * z))))(jnp.arange(15.0).reshape(5, 3))  # padded to 6
 
     print(json.dumps({
         "devices": jax.local_device_count(),
-        "split": [len(tr.q.sharding.device_set), len(pop.q.sharding.device_set), len(geo.energy.sharding.device_set)],
+        "split": [not x.sharding.is_fully_replicated for x in (tr.q, sub.q, pop.q, geo.energy)],
+        "odd": np.asarray(odd).tolist(),
         "reach_q": np.asarray(tr.q).tolist(), "reach_len": np.asarray(tr.length).tolist(), "sub_q": np.asarray(sub.q).tolist(),
         "pop_q": np.asarray(pop.q).tolist(), "geo_energy": np.asarray(geo.energy).tolist(),
     }))
@@ -65,9 +67,9 @@ def _run(devices: int) -> dict:
 def test_two_devices_split_the_batches_and_match_one_device():
     one, two = _run(1), _run(2)
     assert one["devices"] == 1 and two["devices"] == 2
-    assert one["split"] == [1, 1, 1] and two["split"] == [2, 2, 2]
+    assert one["split"] == [False] * 4 and two["split"] == [True] * 4
     assert one["reach_len"] == two["reach_len"]
-    for key in ("reach_q", "pop_q", "geo_energy", "sub_q"):
+    for key in ("reach_q", "pop_q", "geo_energy", "sub_q", "odd"):
         assert np.allclose(np.asarray(one[key]), np.asarray(two[key]), atol=1e-5), key
     for run in (one, two):  # sub-batched rollouts are the whole batch's
         assert np.allclose(np.asarray(run["sub_q"]), np.asarray(run["reach_q"]), atol=1e-5)

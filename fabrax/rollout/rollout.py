@@ -265,7 +265,7 @@ def reach(
     (`posture_reached`); with `settle` (rad/s) the test also needs every joint
     slower than that, so that a rollout ends at rest, not passing through the goal.
     Returns a batched `Trajectory`. The problems split over the local devices, and a device's share
-    larger than `sub_batch` runs as consecutive sub-batches of that size (`fabrax.sharding.chunked`).
+    larger than `sub_batch` runs as consecutive sub-batches of that size (`fabrax.sharding.batched`).
     """
     if stop not in ("goal", "posture"):
         raise ValueError(f"stop must be 'goal' or 'posture', got '{stop}'")
@@ -281,4 +281,4 @@ def reach(
 
     b = problems
     args = (b["start_q"], b["start_qd"], b["joint_goal"], b["goal_q"], b["goal_pos"], b["goal_quat"], b["scene"])
-    return sharding.chunked(jax.vmap(one), sub_batch)(*args)
+    return sharding.batched(jax.vmap(one), sub_batch)(*args)

@@ -65,4 +65,4 @@ def follower(fabric, params, cfg: FollowConfig = FollowConfig()):
         seq = jax.vmap(lambda g: fabric.with_joint_goal(params, g))(path[idx])
         return rollout_sequence(fabric, seq, scene, path[0], jnp.zeros_like(path[0]), fabric.reached, dt=cfg.dt, steps=steps, via=via)
 
-    return jax.jit(lambda paths, scene: jax.vmap(run, in_axes=(0, None))(sharding.constrain(paths), scene))
+    return jax.jit(lambda paths, scene: sharding.batched(jax.vmap(lambda path: run(path, scene)))(paths))

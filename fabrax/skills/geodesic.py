@@ -135,12 +135,12 @@ def graph_path(speed2: Speed2, args, nodes, weights, sb: spline.SplineBasis, sta
 
 def solver(speed2: Speed2, cfg: GeodesicConfig = GeodesicConfig(), nodes=None):
     """jitted (args, starts (B, d), ends (B, d)) -> batched `Geodesic`, one loop for all pairs, split over
-    the local devices (`fabrax.sharding`; B a multiple of their count uses them all).
+    the local devices (`fabrax.sharding.batched`).
     nodes (V, d): latent points on the data for the graph initialisation (None: straight-line start)."""
     sb = spline.basis(cfg.segments, cfg.points)
     if nodes is None:
-        batched = jax.vmap(lambda args, a, b: shortest(speed2, args, sb, a, b, cfg), in_axes=(None, 0, 0))
-        return jax.jit(lambda args, starts, ends: batched(args, *sharding.constrain((starts, ends))))
+        pairs = jax.vmap(lambda args, a, b: shortest(speed2, args, sb, a, b, cfg), in_axes=(None, 0, 0))
+        return jax.jit(lambda args, starts, ends: sharding.batched(lambda a, b: pairs(args, a, b))(starts, ends))
     nodes = jnp.asarray(nodes, jnp.float32)
 
     def one(args, weights, a, b):
@@ -151,6 +151,6 @@ def solver(speed2: Speed2, cfg: GeodesicConfig = GeodesicConfig(), nodes=None):
 
     def run(args, starts, ends):
         weights = graph(speed2, args, nodes, cfg.neighbours, cfg.samples)
-        return jax.vmap(one, in_axes=(None, None, 0, 0))(args, weights, *sharding.constrain((starts, ends)))
+        return sharding.batched(jax.vmap(lambda a, b: one(args, weights, a, b)))(starts, ends)
 
     return jax.jit(run)
