@@ -1,9 +1,10 @@
 """Batch axes over all local devices with `jax.sharding`: one mesh, one axis name.
 
-Every batched solver (arm rollouts, GFCS populations, geodesic batches) marks its
-batch axis with `constrain` inside its jitted function; GSPMD then splits the
-vmapped computation over the devices of `mesh()`, and nothing else changes: each
-arm's numbers are the ones a single device computes. A multi-GPU node or a TPU
+Every batched solver (arm rollouts, GFCS populations, geodesic batches, skill
+execution) marks its batch axis inside its jitted function, with `constrain` or
+with `batched` (which also pads the batch to a multiple of the device count);
+GSPMD then splits the vmapped computation over the devices of `mesh()`, and
+nothing else changes: each arm's maths is the one a single device runs. A multi-GPU node or a TPU
 slice scales without code changes. On a CPU, XLA shows one device unless told
 otherwise: set FABRAX_CPU_DEVICES=<cores> before importing fabrax (it becomes
 `--xla_force_host_platform_device_count`) to run one shard per core. The RL guide's
