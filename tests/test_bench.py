@@ -320,3 +320,36 @@ def test_a_problem_a_method_refuses_fails_alone(panda):
     assert set(rows) == {"demo/0", "demo/1", "demo/2"}
     assert rows["demo/1"]["info"]["error"] == "demo/1: refused" and not rows["demo/1"]["success"]
     assert rows["demo/0"]["reached"] and rows["demo/2"]["reached"] and "error" not in rows["demo/0"]["info"]
+
+
+def test_a_stopped_run_resumes_and_refuses_other_settings(panda, tmp_path):
+    """The runner saves solutions after every batch; resume=True solves only what is missing and
+    refuses a checkpoint written with other settings."""
+    from fabrax.bench.methods import Solution
+    from fabrax.bench.runner import CheckpointMismatch, run
+    from fabrax.problems.generators import demo_problem
+
+    base = demo_problem(panda)
+    problems = [dataclasses.replace(base, name=f"demo/{k}") for k in range(4)]
+
+    class Counting:
+        name, batch_size, dt = "straight", 2, 0.01
+
+        def __init__(self, stop_after=None):
+            self.solved, self.stop_after = [], stop_after
+
+        def solve(self, robot, part):
+            if self.stop_after is not None and len(self.solved) >= self.stop_after:
+                raise KeyboardInterrupt  # the run is stopped mid-way
+            self.solved += [p.name for p in part]
+            return [Solution(np.linspace(p.start_q, p.goal_q, 50), self.dt, 0.1) for p in part]
+
+    ckpt, settings = tmp_path / "solutions.pkl", {"method": "straight", "seed": 0}
+    with pytest.raises(KeyboardInterrupt):
+        run(Counting(stop_after=2), panda, problems, progress=False, checkpoint=ckpt, settings=settings)
+    again = Counting()
+    rows = run(again, panda, problems, progress=False, checkpoint=ckpt, settings=settings, resume=True)
+    assert again.solved == ["demo/2", "demo/3"]  # the first batch came from the checkpoint
+    assert [r["problem"] for r in rows] == [p.name for p in problems] and all(r["reached"] for r in rows)
+    with pytest.raises(CheckpointMismatch, match="seed"):
+        run(Counting(), panda, problems, progress=False, checkpoint=ckpt, settings={**settings, "seed": 1}, resume=True)

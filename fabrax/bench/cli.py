@@ -160,7 +160,7 @@ def run_bench(cfg: dict, out: Path) -> list[dict]:
     import jax
 
     from fabrax.bench.metrics import Goal
-    from fabrax.bench.runner import run, summary_table, write
+    from fabrax.bench.runner import CheckpointMismatch, run, summary_table, write
 
     check(cfg)
     robot_name = config.robot_choice(cfg)
@@ -172,7 +172,22 @@ def run_bench(cfg: dict, out: Path) -> list[dict]:
         raise SystemExit(f"fabrax bench: {e}{hint}") from None
     method = make_method(cfg, robot)
     t0 = time.perf_counter()
-    rows = run(method, robot, problems, goal=Goal(**cfg["goal"]), margin=cfg["margin"], frame=cfg["frame"], progress=cfg["progress"])
+    settings = {k: v for k, v in cfg.items() if k not in ("out", "progress", "resume")}
+    try:
+        rows = run(
+            method,
+            robot,
+            problems,
+            goal=Goal(**cfg["goal"]),
+            margin=cfg["margin"],
+            frame=cfg["frame"],
+            progress=cfg["progress"],
+            checkpoint=out / "solutions.pkl",
+            settings=settings,
+            resume=bool(cfg.get("resume", False)),
+        )
+    except CheckpointMismatch as e:
+        raise SystemExit(f"fabrax bench: {e}") from None
     meta = {
         "config": cfg,
         "robot": robot_name,

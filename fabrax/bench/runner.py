@@ -3,7 +3,8 @@
 Outputs in the run directory: `results.json` (one row per problem: `problem`,
 `class`, `method`, `valid_problem`, the metrics of `metrics.evaluate`,
 `plan_time_s`, `compile_s`), `paths.npz` (the joint paths, for `fabrax view results`), `summary.md` (per class, like gfcs_paper Table I)
-and PNG plots (success per class, end-effector path lengths).
+and PNG plots (success per class, end-effector path lengths). While it runs, `solutions.pkl`
+(the solutions so far and the settings they were made with) lets a stopped run resume.
 """
 
 from __future__ import annotations
@@ -11,6 +12,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
+import pickle
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +23,11 @@ from fabrax.bench.methods import Method, Solution
 from fabrax.bench.metrics import Goal, evaluate
 from fabrax.problems.problem import Problem
 from fabrax.robot.robot import Robot
+
+
+class CheckpointMismatch(ValueError):
+    """A run asked to resume from solutions made with other settings."""
+
 
 METRICS = ("ee_length", "cspace_length", "ee_ldj", "cspace_ldj", "plan_time_s", "duration_s")
 
@@ -33,20 +41,28 @@ def run(
     margin: float = 0.0,
     frame: str = "panda_hand",
     progress: bool = True,
+    checkpoint: Path | None = None,
+    settings: dict | None = None,
+    resume: bool = False,
 ) -> list[dict]:
     """Rows of metrics, one per problem; invalid problems are reported (valid_problem false), not run.
     With goal.criterion "auto", a method's own `criterion` (e.g. "pose" for a pose-aimed fabric)
-    decides `success`."""
+    decides `success`. With `checkpoint`, the solutions are saved there after every batch together
+    with `settings`; resume=True first loads them (refused if their settings differ) and solves
+    only the problems still missing."""
     if goal.criterion == "auto" and getattr(method, "criterion", "auto") != "auto":
         goal = dataclasses.replace(goal, criterion=method.criterion)
     valid = [p for p in problems if p.valid]
     chunk = getattr(method, "batch_size", 1)
-    solutions = {}
-    with tqdm(total=len(valid), desc=method.name, disable=not progress, unit="problem") as bar:
-        for start in range(0, len(valid), chunk):
-            part = valid[start : start + chunk]
+    solutions = _resumed(checkpoint, settings) if resume else {}
+    todo = [p for p in valid if p.name not in solutions]
+    with tqdm(total=len(valid), initial=len(valid) - len(todo), desc=method.name, disable=not progress, unit="problem") as bar:
+        for start in range(0, len(todo), chunk):
+            part = todo[start : start + chunk]
             for p, s in zip(part, _solve(method, robot, part), strict=True):
                 solutions[p.name] = s
+            if checkpoint is not None:
+                _save(checkpoint, settings, solutions)
             bar.update(len(part))
     rows = []
     for p in problems:
@@ -61,6 +77,24 @@ def run(
                 row["path"] = np.asarray(sol.q, np.float32)  # written to paths.npz, not results.json
             rows.append(row)
     return rows
+
+
+def _save(path: Path, settings: dict | None, solutions: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_bytes(pickle.dumps({"settings": settings, "solutions": solutions}))
+    os.replace(tmp, path)  # never a half-written checkpoint
+
+
+def _resumed(path: Path | None, settings: dict | None) -> dict:
+    """The solutions of an earlier run with the same settings (none if it left no checkpoint)."""
+    if path is None or not path.exists():
+        return {}
+    saved = pickle.loads(path.read_bytes())
+    if saved["settings"] != settings:
+        keys = sorted(k for k in set(saved["settings"] or {}) | set(settings or {}) if (saved["settings"] or {}).get(k) != (settings or {}).get(k))
+        raise CheckpointMismatch(f"{path} was written with other settings ({', '.join(keys)}); use another out= or resume=false")
+    return saved["solutions"]
 
 
 def _solve(method: Method, robot: Robot, part: list[Problem]) -> list:
