@@ -86,7 +86,7 @@ def main() -> None:
     robot = config.load_robot()
     fabric, params = config.load_fabric(robot)
     p = fabric.with_pose_goal(params, jnp.asarray(GOAL), jnp.asarray([0.0, 1.0, 0.0, 0.0]))
-    p = fabric._set(p, "ee", point_weights=jnp.asarray([1.0, 0.0, 0.0]))  # position only, as the CasADi goal
+    p = {**p, "ee": {**p["ee"], "point_weights": jnp.asarray([1.0, 0.0, 0.0])}}  # position only, as the CasADi goal
     rng = np.random.default_rng(0)
     qs = np.asarray(READY) + rng.normal(scale=0.1, size=(args.calls, 7))
     qds = rng.normal(scale=0.1, size=(args.calls, 7))

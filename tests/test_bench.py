@@ -346,7 +346,7 @@ def test_a_stopped_run_resumes_and_refuses_other_settings(panda, tmp_path):
 
     ckpt, settings = tmp_path / "solutions.pkl", {"method": "straight", "seed": 0}
     with pytest.raises(KeyboardInterrupt):
-        run(Counting(stop_after=2), panda, problems, progress=False, checkpoint=ckpt, settings=settings)
+        run(Counting(stop_after=2), panda, problems, progress=False, checkpoint=ckpt, settings=settings, save_every_s=0.0)
     again = Counting()
     rows = run(again, panda, problems, progress=False, checkpoint=ckpt, settings=settings, resume=True)
     assert again.solved == ["demo/2", "demo/3"]  # the first batch came from the checkpoint

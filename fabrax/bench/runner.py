@@ -14,6 +14,7 @@ import json
 import math
 import os
 import pickle
+import time
 from pathlib import Path
 
 import numpy as np
@@ -44,25 +45,29 @@ def run(
     checkpoint: Path | None = None,
     settings: dict | None = None,
     resume: bool = False,
+    save_every_s: float = 30.0,
 ) -> list[dict]:
     """Rows of metrics, one per problem; invalid problems are reported (valid_problem false), not run.
     With goal.criterion "auto", a method's own `criterion` (e.g. "pose" for a pose-aimed fabric)
-    decides `success`. With `checkpoint`, the solutions are saved there after every batch together
-    with `settings`; resume=True first loads them (refused if their settings differ) and solves
-    only the problems still missing."""
+    decides `success`. With `checkpoint`, the solutions are saved there with `settings` after the
+    last batch and after any batch that ends `save_every_s` or more after the previous save (a
+    planner that solves in a millisecond would otherwise spend its run pickling). resume=True
+    first loads them (refused if their settings differ) and solves only the problems still missing."""
     if goal.criterion == "auto" and getattr(method, "criterion", "auto") != "auto":
         goal = dataclasses.replace(goal, criterion=method.criterion)
     valid = [p for p in problems if p.valid]
     chunk = getattr(method, "batch_size", 1)
     solutions = _resumed(checkpoint, settings) if resume else {}
     todo = [p for p in valid if p.name not in solutions]
+    saved = time.monotonic()
     with tqdm(total=len(valid), initial=len(valid) - len(todo), desc=method.name, disable=not progress, unit="problem") as bar:
         for start in range(0, len(todo), chunk):
             part = todo[start : start + chunk]
             for p, s in zip(part, _solve(method, robot, part), strict=True):
                 solutions[p.name] = s
-            if checkpoint is not None:
+            if checkpoint is not None and (start + chunk >= len(todo) or time.monotonic() - saved >= save_every_s):
                 _save(checkpoint, settings, solutions)
+                saved = time.monotonic()
             bar.update(len(part))
     rows = []
     for p in problems:
