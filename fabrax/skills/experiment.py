@@ -272,7 +272,7 @@ def table(results: list[dict]) -> str:
     head = (
         "| demo | space | latent | obstacle on | dist. to demos Riem. mean / max (cm) | Eucl. mean / max (cm) | EE clearance plain / reshaped (cm) "
         "| arm-point clearance plain / reshaped (cm) | replay collisions plain / reshaped | fabric success plain / reshaped "
-        "| fabric collisions plain / reshaped | geodesic ms (1 / batch) |\n|" + "---|" * 12 + "\n"
+        "| fabric collisions plain / reshaped | geodesic ms (1 / batch) | energy at 10x points / solved, median / max |\n|" + "---|" * 13 + "\n"
     )
     rows = []
     for r in results:
@@ -287,6 +287,7 @@ def table(results: list[dict]) -> str:
             f"| {p['replay_collision_rate']:.0%} / {s['replay_collision_rate']:.0%} "
             f"| {p['fabric_success_rate']:.0%} / {s['fabric_success_rate']:.0%} "
             f"| {p['fabric_collision_rate']:.0%} / {s['fabric_collision_rate']:.0%} "
-            f"| {t['single_ms']} / {t['batch_ms']} ({t['batch']}) |"
+            f"| {t['single_ms']} / {t['batch_ms']} ({t['batch']}) "
+            f"| {g['riemannian'].get('resolved_ratio_median', float('nan')):.3g} / {g['riemannian'].get('resolved_ratio_max', float('nan')):.3g} |"
         )
     return head + "\n".join(rows) + "\n"
