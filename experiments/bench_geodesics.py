@@ -33,7 +33,7 @@ from omegaconf import OmegaConf
 import fabrax  # noqa: F401  (XLA flags before jax)
 from fabrax import config
 from fabrax.skills import geodesic, metric, spline, vae
-from fabrax.skills.experiment import _pairs, load_demos, nearest
+from fabrax.skills.experiment import demo_pairs, load_demos, nearest
 from fabrax.skills.rbf import kmeans
 
 
@@ -71,7 +71,7 @@ def main() -> None:
     rng = np.random.default_rng(0)
     flat = codes.reshape(-1, codes.shape[-1])
     a, b = (jnp.asarray(flat[rng.integers(len(flat), size=args.batch)]) for _ in range(2))
-    pairs = _pairs(d, skills["pairs"], skills["seed"])
+    pairs = demo_pairs(d, skills["pairs"], skills["seed"])
     pa, pb = jnp.asarray(codes[pairs[:, 0], 0]), jnp.asarray(codes[pairs[:, 1], -1])
     fine = spline.basis(5, args.resolve)
     resolved = jax.jit(jax.vmap(lambda c: geodesic.curve_energy(speed2, margs, fine, c)))

@@ -53,7 +53,7 @@ def load_demos(cfg: dict, robot) -> Demos:
     return Demos(np.tile(x, (b, 1, 1)), np.tile(q, (b, 1, 1)), theta, np.repeat(np.arange(b), len(x)))
 
 
-def _pairs(d: Demos, n: int, seed: int) -> np.ndarray:
+def demo_pairs(d: Demos, n: int, seed: int) -> np.ndarray:
     """(n, 2) demonstration indices (start of a, end of b): each demonstration's own start and end first,
     then random pairs within one IK branch."""
     rng = np.random.default_rng(seed)
@@ -110,7 +110,7 @@ def run(cfg: dict, out: Path) -> dict:
         return np.asarray(pos).reshape(*zs.shape[:2], 3), np.asarray(quat).reshape(*zs.shape[:2], 4)
 
     # --- geodesics between demonstration starts and ends: Riemannian vs Euclidean (straight latent line)
-    pairs = _pairs(d, cfg["pairs"], cfg["seed"])
+    pairs = demo_pairs(d, cfg["pairs"], cfg["seed"])
     starts, ends = jnp.asarray(codes[pairs[:, 0], 0]), jnp.asarray(codes[pairs[:, 1], -1])
     geo = solve((state, metric.NONE), starts, ends)
     z_riem, z_eucl = densify(geo.coeffs), densify(straight(starts, ends))
