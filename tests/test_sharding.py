@@ -40,9 +40,12 @@ SCRIPT = textwrap.dedent(
     seqs = jax.vmap(lambda g: jax.tree.map(lambda a: a[None], fab.with_joint_goal(params, g)))(goals)
     pop = jax.jit(lambda s: rollout_population(fab, s, problems[0].scene, problems[0].start_q, jnp.zeros(7), fab.reached, dt=0.01, steps=60))(seqs)
 
-    bump = lambda args, z, v: jnp.sum(v * v) * (1.0 + args * jnp.exp(-jnp.sum(z * z)))
+    h = lambda args, z: jnp.concatenate([z, args * jnp.exp(-jnp.sum(z * z))[None]])  # a bump over the plane
+    bump = geodesic.CurveMetric(
+        lambda args, z, v: jnp.sum(jax.jvp(lambda z: h(args, z), (z,), (v,))[1] ** 2), lambda args, a, b: jnp.sum((h(args, b) - h(args, a)) ** 2)
+    )
     starts = jnp.asarray([[-1.0, 0.1], [-1.0, -0.2], [-0.8, 0.3], [-1.2, 0.0]])
-    geo = geodesic.solver(bump, geodesic.GeodesicConfig(iters=50))(jnp.float32(4.0), starts, -starts[:, ::-1])
+    geo = geodesic.solver(bump, geodesic.GeodesicConfig(iters=50))(jnp.float32(2.0), starts, -starts[:, ::-1])
     odd = jax.jit(sharding.batched(jax.vmap(lambda z: jnp.sin(z) * jnp.sum(z * z))))(jnp.arange(15.0).reshape(5, 3))  # padded to 6
 
     print(json.dumps({

@@ -62,7 +62,7 @@ def _flat_speed2(args, z, v):
 @pytest.mark.parametrize("method", geodesic.METHODS)
 def test_identity_metric_geodesic_is_the_straight_line_and_energy_decreases(method):
     sb = spline.basis(5, 20)
-    cfg = geodesic.GeodesicConfig(method=method, lr=0.05, iters=2000, tol=1e-5)
+    cfg = geodesic.GeodesicConfig(method=method, rule="gauss", lr=0.05, iters=2000, tol=1e-5)
     a, b = jnp.asarray([-1.0, 0.5]), jnp.asarray([2.0, -1.0])
     w0 = spline.straight(sb, a, b) + 0.3 * jax.random.normal(jax.random.key(0), (6, 2))
     g = geodesic.shortest(_flat_speed2, None, sb, a, b, cfg, w0=w0)
@@ -97,7 +97,7 @@ def test_a_shrinking_batch_gives_each_pair_its_own_result():
     rng = np.random.default_rng(2)
     starts = jnp.asarray(rng.uniform(-2.0, -0.5, (40, 2)), jnp.float32)
     ends = jnp.asarray(rng.uniform(0.5, 2.0, (40, 2)), jnp.float32)
-    cfg = geodesic.GeodesicConfig(iters=60)
+    cfg = geodesic.GeodesicConfig(iters=60, rule="gauss")
     shrunk = geodesic.solver(_bump, cfg)(jnp.float32(4.0), starts, ends)
     whole = geodesic.solver(_bump, dataclasses.replace(cfg, shrink=1))(jnp.float32(4.0), starts, ends)
     assert len(set(np.asarray(shrunk.iters).tolist())) > 3  # the pairs stop at different steps
@@ -110,9 +110,68 @@ def test_a_shrinking_batch_gives_each_pair_its_own_result():
     assert np.all(np.asarray(shrunk.energy) < np.asarray(shrunk.energy0))
 
 
-def test_geodesic_config_refuses_an_unknown_method():
+def test_geodesic_config_refuses_an_unknown_method_or_rule():
     with pytest.raises(ValueError, match="geodesic.method"):
         geodesic.GeodesicConfig(method="bfgs")
+    with pytest.raises(ValueError, match="geodesic.rule"):
+        geodesic.GeodesicConfig(rule="simpson")
+    with pytest.raises(ValueError, match="chord2"):  # a bare speed2 has no chords
+        geodesic.solver(_bump, geodesic.GeodesicConfig())
+
+
+class _Step(nnx.Module):
+    """z -> (z1, z2, height tanh(z1 / width)): a flat sheet with a step of 2 height across z1 = 0, `width` wide."""
+
+    def __init__(self, height: float, width: float):
+        self.height, self.width = height, width
+
+    def embed(self, z):
+        return jnp.asarray([z[0], z[1], 0.5])[None], jnp.asarray([z[0], z[1], self.height * jnp.tanh(z[0] / self.width)])[None], jnp.zeros(0)
+
+    def rows(self, z, v):
+        (x, _, _), (_, da, df) = jax.jvp(self.embed, (z,), (v,))
+        return x, da, df
+
+    def chord(self, za, zb):
+        (xa, aa, fa), (xb, ab, fb) = self.embed(za), self.embed(zb)
+        return 0.5 * (xa + xb), ab - aa, fb - fa
+
+
+def test_chord_energy_bounds_the_curve_energy_from_below_and_sees_a_step_between_points():
+    """Chords: N sum |h(z_n+1) - h(z_n)|^2 <= int |dh/dt|^2 dt (Cauchy-Schwarz), rising with every halving of the
+    chords; a step of the decoder between two vertices costs its whole jump, where Gauss points just miss it."""
+    gd, state = nnx.split(_Step(1.0, 0.2))
+    cm, args = metric.curve_metric(gd), (state, metric.NONE)
+    a, b = jnp.asarray([-1.0, 0.3]), jnp.asarray([1.0, -0.2])
+    sb = spline.basis(5, 20)
+    coeffs = spline.coefficients(sb, a, b, spline.straight(sb, a, b) + 0.1 * jax.random.normal(jax.random.key(1), (6, 2)))
+    chords = [float(geodesic.curve_energy(cm, args, spline.basis(5, n, "chord"), coeffs)) for n in (10, 20, 40, 80, 160, 2000)]
+    true = float(geodesic.curve_energy(cm, args, spline.basis(5, 2000, "gauss"), coeffs))
+    assert all(c1 <= c2 * (1 + 1e-5) for c1, c2 in zip(chords, chords[1:]))
+    assert chords[-1] <= true * (1 + 1e-4) and chords[-1] > 0.999 * true
+    # a step 1e-3 wide across the straight line's midpoint, which no Gauss point of 20 comes near
+    gd, state = nnx.split(_Step(1.0, 1e-3))
+    cm, args = metric.curve_metric(gd), (state, metric.NONE)
+    a, b = jnp.asarray([-1.0, 0.0]), jnp.asarray([1.0, 0.0])
+    line = spline.coefficients(sb, a, b, spline.straight(sb, a, b))
+    gauss = float(geodesic.curve_energy(cm, args, spline.basis(5, 20, "gauss"), line))
+    chord = float(geodesic.curve_energy(cm, args, spline.basis(5, 20, "chord"), line))
+    assert gauss < 4.1  # |b - a|^2: the step unseen
+    assert chord > 4.0 + 20 * 4.0 / 2 * 0.99  # a jump of 2 over at most two chords (here a vertex sits on it) costs >= 20 (2)^2 / 2
+
+
+def test_chord2_is_the_squared_speed_over_a_short_chord(task_skill, panda):
+    """chord2(z, z + eps v) / eps^2 -> v^T M(z) v, for both VAEs and under an ambient metric."""
+    model, log, _, _ = task_skill
+    theta = np.asarray(panda.clip(jnp.asarray([0.0, -0.3, 0.0, -2.0, 0.0, 1.8, 0.785]))) + 0.2 * np.random.default_rng(0).standard_normal((100, 7))
+    joint, _ = vae.fit_joint(panda, theta, vae.VAEConfig(steps=100, rbf_steps=30, centers=8))
+    v, eps = jnp.asarray([0.3, -0.7]), 1e-3
+    for m, z in ((model, jnp.asarray(log["codes"][3], jnp.float32)), (joint, jnp.asarray([0.3, -0.2]))):
+        anchor = m.rows(z, v)[0][-1]
+        for obs in (metric.NONE, metric.obstacles([np.asarray(anchor) + 0.05], [0.1], eta=20.0)):
+            s2 = float(metric.speed2(m, obs, z, v))
+            c2 = float(metric.chord2(m, obs, z - 0.5 * eps * v, z + 0.5 * eps * v)) / eps**2
+            assert abs(c2 - s2) < 2e-3 * s2
 
 
 class _Plane(nnx.Module):
@@ -121,17 +180,21 @@ class _Plane(nnx.Module):
     def rows(self, z, v):
         return jnp.asarray([z[0], z[1], 0.5])[None], jnp.concatenate([v, jnp.zeros(1)])[None], jnp.zeros(0)
 
+    def chord(self, za, zb):
+        return jnp.asarray([0.5 * (za[0] + zb[0]), 0.5 * (za[1] + zb[1]), 0.5])[None], jnp.concatenate([zb - za, jnp.zeros(1)])[None], jnp.zeros(0)
+
 
 @pytest.mark.parametrize("method", geodesic.METHODS)
-def test_ambient_metric_increases_clearance_from_an_obstacle_on_the_euclidean_geodesic(method):
+@pytest.mark.parametrize("rule", spline.RULES)
+def test_ambient_metric_increases_clearance_from_an_obstacle_on_the_euclidean_geodesic(method, rule):
     model = _Plane()
     gd, state = nnx.split(model)
-    cfg = geodesic.GeodesicConfig(method=method, iters=600, lr=0.02)
+    cfg = geodesic.GeodesicConfig(method=method, rule=rule, iters=600, lr=0.02)
     a, b = jnp.asarray([[-1.0, 0.0]]), jnp.asarray([[1.0, 0.05]])
     center = np.array([0.0, 0.025, 0.5])  # on the straight line between a and b
     obs = metric.obstacles([center], [0.3], eta=50.0)
-    plain = geodesic.solver(metric.speed2_fn(gd), cfg)((state, metric.NONE), a, b)
-    shaped = geodesic.solver(metric.speed2_fn(gd), cfg)((state, obs), a, b)
+    plain = geodesic.solver(metric.curve_metric(gd), cfg)((state, metric.NONE), a, b)
+    shaped = geodesic.solver(metric.curve_metric(gd), cfg)((state, obs), a, b)
     from fabrax.skills.spline import dense
 
     def clear(g):
@@ -140,6 +203,8 @@ def test_ambient_metric_increases_clearance_from_an_obstacle_on_the_euclidean_ge
 
     assert clear(plain) < 0.01
     assert clear(shaped) > clear(plain) + 0.1
+    # the check at 10x the points: this smooth metric is resolved
+    np.testing.assert_allclose(shaped.resolved, shaped.energy, rtol=0.02)
     # the metric itself: identity away from the obstacle, scaled by 1 + eta at its centre
     np.testing.assert_allclose(metric.metric(model, obs, jnp.asarray([5.0, 5.0])), np.eye(2), atol=1e-5)
     np.testing.assert_allclose(metric.metric(model, obs, jnp.asarray(center[:2])), 51.0 * np.eye(2), rtol=1e-5)
@@ -184,11 +249,12 @@ def test_trained_vae_variance_grows_away_from_the_data(task_skill):
     assert float(jax.vmap(model.kappa)(far).mean()) < 0.1 * float(jax.vmap(model.kappa)(codes).mean())
 
 
-def test_energy_gradient_matches_finite_differences(task_skill):
+@pytest.mark.parametrize("rule", spline.RULES)
+def test_energy_gradient_matches_finite_differences(task_skill, rule):
     model, log, _, _ = task_skill
     gd, state = nnx.split(model)
-    f = metric.speed2_fn(gd)
-    sb = spline.basis(4, 20)
+    f = metric.curve_metric(gd)
+    sb = spline.basis(4, 20, rule)
     a, b = jnp.asarray(log["codes"][0], jnp.float32), jnp.asarray(log["codes"][-1], jnp.float32)
     w = spline.straight(sb, a, b)
     e = lambda w: geodesic.energy(f, (state, metric.NONE), sb, a, b, w)  # noqa: E731
@@ -214,14 +280,12 @@ def test_geodesic_follows_the_data_better_than_the_latent_line(task_skill):
     gd, state = nnx.split(model)
     nodes = kmeans(codes.reshape(-1, 2), 48)[0]
     a, b = jnp.asarray(codes[:, 0]), jnp.asarray(codes[:, -1])
-    # this small model's variance walls are thin: 20 points let the minimiser slip between them (energy 1 against
-    # 1e4 at 200 points) and leave the data; 100 resolve them well enough
-    cfg = geodesic.GeodesicConfig(points=100)
-    solve = lambda m: geodesic.solver(metric.speed2_fn(gd), dataclasses.replace(cfg, method=m), nodes)((state, metric.NONE), a, b)  # noqa: E731
+    cfg = geodesic.GeodesicConfig()
+    solve = lambda m: geodesic.solver(metric.curve_metric(gd), dataclasses.replace(cfg, method=m), nodes)((state, metric.NONE), a, b)  # noqa: E731
     g, adam = solve("newton"), solve("adam")
     assert np.all(np.asarray(g.energy) <= np.asarray(g.energy0) + 1e-4)
     assert np.all(np.asarray(g.energy) <= 1.05 * np.asarray(adam.energy) + 1e-3)  # Newton gets at least as low as Adam's 300 steps
-    sb = spline.basis(5, 100)
+    sb = cfg.basis()
     line = jax.vmap(lambda a, b: spline.coefficients(sb, a, b, spline.straight(sb, a, b)))(a, b)
     dec = lambda c: np.asarray(jax.vmap(jax.vmap(model.decode_x))(jax.vmap(dense)(c)))  # noqa: E731
     d_geo, d_line = nearest(dec(g.coeffs), x.reshape(-1, 3)), nearest(dec(line), x.reshape(-1, 3))
@@ -271,6 +335,16 @@ def test_bad_inputs_fail_clearly():
         metric.obstacles([[0, 0, 0], [1, 1, 1]], [0.1])
     with pytest.raises(ValueError, match="unknown shape"):
         demos.lasa("NoSuchShape")
+
+
+def test_hemisphere_puts_a_quaternion_set_on_one_side_or_refuses_it():
+    q = np.asarray(_sphere(2000, seed=4))
+    near = q[np.abs(q @ np.array([0.6, 0.0, 0.8, 0.0])) > 0.9]  # within 26 degrees of an axis (either sign)
+    out = vae.hemisphere(near)
+    np.testing.assert_allclose(np.abs(out), np.abs(near), atol=1e-7)  # the same orientations
+    assert np.all(out @ out.mean(0) > 0) and len(near) > 5
+    with pytest.raises(ValueError, match="antipodal"):  # orientations all over the sphere: no hemisphere holds them
+        vae.hemisphere(q)
 
 
 def test_two_ik_branches_trace_the_same_path(panda):

@@ -1,21 +1,36 @@
 """Geodesics as energy-minimising cubic splines (paper §4, eq. 29).
 
-The curve energy E(c) = int_0^1 c'(t)^T M(c(t)) c'(t) dt is discretised at the
-spline basis' N Gauss-Legendre points and minimised over the spline's free
-parameters w, starting from the straight latent line. Under a Riemannian metric
-the minimiser of the energy is a constant-speed length minimiser (a geodesic).
+The curve energy E(c) = int_0^1 c'(t)^T M(c(t)) c'(t) dt is minimised over the
+spline's free parameters w, starting from the straight latent line (or a graph
+path, below). Under a Riemannian metric the minimiser of the energy is a
+constant-speed length minimiser (a geodesic). Two discretisations
+(`GeodesicConfig.rule`):
+
+- "chord" (default): the energy of the decoded polyline, N sum_n |h(z_n+1) - h(z_n)|^2
+  over N equal chords of the curve, for a pullback metric M = J_h^T J_h of a decoder h
+  (Shao et al. 2018, which the paper cites for direct minimisation). By Cauchy-Schwarz
+  each chord's term is at most the energy of the curve between its vertices, and equal
+  for a curve that the decoder maps to a constant-speed segment. A thin wall of the
+  decoder's variance, or an orientation that flips where the quaternion decoder's raw
+  output passes near zero, costs the whole jump of h between two vertices however
+  quickly the curve crosses it; a quadrature of v^T M v at points does not see a wall
+  between its points, and a minimiser learns to cross walls there.
+- "gauss": Gauss-Legendre quadrature of v^T M(z) v at N points, for any metric given
+  as speed2 alone.
+
+Every solve also reports the energy of the solved curves at `check` times the points
+(`Geodesic.resolved`): near the solved energy where the discretisation resolves the metric.
 
 Two minimisers (`GeodesicConfig.method`):
 
-- "newton" (default): damped Newton steps with the exact Hessian. The points
-  z_n = c(t_n) and velocities v_n = c'(t_n) are linear in w, so the Hessian of
-  E = sum_n omega_n f(z_n, v_n), f = v^T M(z) v, is assembled from each point's
-  2d x 2d Hessian of f (one forward-over-reverse pass gives value, gradient and
-  Hessian). A step uses the Hessian's absolute eigenvalues (saddle-free) plus a
-  damping lambda times the largest; each iteration tries `trials` dampings
-  10x apart, and steps along the most negative curvature, in one energy pass
-  and takes the lowest energy. A step that lowers no energy is not taken and
-  lambda grows.
+- "newton" (default): damped Newton steps with the exact Hessian. The energy is a
+  sum over sites n of f(x_n) with x_n = (z_n, v_n) (gauss) or (z_n, z_n+1) (chord),
+  all linear in w, so the Hessian is assembled from each site's 2d x 2d Hessian of f
+  (forward over reverse; under gauss the v-v block by polarisation). A step uses the
+  Hessian's absolute eigenvalues (saddle-free) plus a damping lambda times the largest;
+  each iteration tries `trials` dampings 10x apart, and steps along the most negative
+  curvature, in one energy pass and takes the lowest energy. A step that lowers no
+  energy is not taken and lambda grows.
 - "adam": optax's Adam at step `lr`.
 
 Both stop when the gradient's largest entry falls below `tol` (1 + E) or after
@@ -29,10 +44,6 @@ pairs still run, those go on alone as a smaller batch (sizes B, B / shrink,
 ..., down to 8), so a few slow pairs do not make the batch pay for their
 iterations.
 
-The quadrature must resolve the metric: an RBF variance whose walls are
-narrower than the points' spacing lets a minimiser slip a curve between the
-points (`curve_energy` on a finer basis shows it).
-
 Gradient descent from the straight line stalls where the line crosses a hole in
 the data: the RBF variance is flat far from the codes, so only the walls around
 the data cost energy. With `nodes` (latent points on the data, e.g. k-means
@@ -41,9 +52,10 @@ neighbour graph over the nodes, start and end, edges weighted by their metric
 length (Bellman-Ford relaxation in JAX), fits the spline through it, and starts
 from whichever of that curve and the straight line has lower energy.
 
-`speed2(args, z, v)` gives v^T M(z) v for latent point z and velocity v; args
-(a pytree: model weights, obstacles) is traced, so moving an obstacle does not
-recompile.
+The metric is a `CurveMetric` (or a bare speed2 for rule "gauss"): speed2(args, z, v)
+gives v^T M(z) v, chord2(args, za, zb) the squared decoded length of the chord
+za -> zb; args (a pytree: model weights, obstacles) is traced, so moving an obstacle
+does not recompile.
 """
 
 from __future__ import annotations
@@ -60,14 +72,29 @@ from fabrax import sharding
 from fabrax.skills import spline
 
 Speed2 = Callable[..., jax.Array]
+Chord2 = Callable[..., jax.Array]
 
 METHODS = ("newton", "adam")
+
+
+class CurveMetric(NamedTuple):
+    """A latent metric as curve energies need it."""
+
+    speed2: Speed2  # (args, z, v) -> v^T M(z) v
+    chord2: Chord2 | None = None  # (args, za, zb) -> |h(zb) - h(za)|^2 for a pullback metric of a decoder h
+
+
+def as_metric(metric) -> CurveMetric:
+    """A `CurveMetric`, or a bare speed2 function as one (for rule "gauss")."""
+    return metric if isinstance(metric, CurveMetric) else CurveMetric(metric)
 
 
 @dataclass(frozen=True)
 class GeodesicConfig:
     segments: int = 5  # cubic pieces
-    points: int = 20  # energy discretisation points
+    points: int = 20  # energy discretisation: chords (rule chord) or quadrature points (rule gauss)
+    rule: str = "chord"  # "chord" (decoded polyline; needs chord2) or "gauss" (quadrature of speed2)
+    check: int = 10  # Geodesic.resolved: the solved curves' energy at check x points (0: not computed)
     method: str = "newton"  # "newton" (exact Hessian, damped) or "adam" (optax)
     iters: int = 300  # most steps
     tol: float = 1e-3  # stop when max |dE/dw| is below tol (1 + E)
@@ -81,9 +108,16 @@ class GeodesicConfig:
     def __post_init__(self):
         if self.method not in METHODS:
             raise ValueError(f"geodesic.method: '{self.method}' is not one of {', '.join(METHODS)}")
+        if self.rule not in spline.RULES:
+            raise ValueError(f"geodesic.rule: '{self.rule}' is not one of {', '.join(spline.RULES)}")
         for name in ("segments", "points", "iters", "trials", "shrink"):
             if getattr(self, name) < 1:
                 raise ValueError(f"geodesic.{name}: must be at least 1, got {getattr(self, name)}")
+        if self.check < 0:
+            raise ValueError(f"geodesic.check: must be 0 (off) or a multiple of the points, got {self.check}")
+
+    def basis(self, points: int | None = None) -> spline.SplineBasis:
+        return spline.basis(self.segments, self.points if points is None else points, self.rule)
 
 
 class Geodesic(NamedTuple):
@@ -93,6 +127,7 @@ class Geodesic(NamedTuple):
     energy0: jax.Array  # () energy of the initial curve
     trace: jax.Array  # (iters,) energy per step (the last value repeated after the stop)
     iters: jax.Array  # () steps taken
+    resolved: jax.Array  # () the final curve's energy at `check` x the points (nan where check = 0)
 
 
 class _Run(NamedTuple):
@@ -109,46 +144,67 @@ class _Run(NamedTuple):
     trace: jax.Array  # (iters,)
 
 
-def curve_energy(speed2: Speed2, args, sb: spline.SplineBasis, coeffs):
-    """Discretised curve energy of the spline with coefficients (4S, d): Gauss-Legendre quadrature of
-    c'^T M(c) c' over the basis' N points. A basis with more points than the solver's checks whether
-    those resolved the metric (a metric with walls narrower than the points' spacing lets a curve pass
-    between them)."""
-    z, v = spline.evaluate(sb, coeffs), spline.evaluate(sb, coeffs, order=1)
-    return jnp.sum(sb.weight * jax.vmap(lambda zi, vi: speed2(args, zi, vi))(z, v))
+def curve_energy(metric, args, sb: spline.SplineBasis, coeffs):
+    """Discretised curve energy of the spline with coefficients (4S, d) under the basis' rule. A basis with
+    more points than the solver's checks whether those resolved the metric."""
+    m = as_metric(metric)
+    z = spline.evaluate(sb, coeffs)
+    if sb.rule == "gauss":
+        v = spline.evaluate(sb, coeffs, order=1)
+        return jnp.sum(sb.weight * jax.vmap(lambda zi, vi: m.speed2(args, zi, vi))(z, v))
+    return jnp.sum(sb.weight * jax.vmap(lambda za, zb: _chord2(m)(args, za, zb))(z[:-1], z[1:]))
 
 
-def energy(speed2: Speed2, args, sb: spline.SplineBasis, start, end, w):
+def _chord2(m: CurveMetric) -> Chord2:
+    if m.chord2 is None:
+        raise ValueError("geodesic.rule: 'chord' needs a metric with chord2 (a CurveMetric of a decoder, e.g. metric.curve_metric); use rule 'gauss'")
+    return m.chord2
+
+
+def energy(metric, args, sb: spline.SplineBasis, start, end, w):
     """`curve_energy` of the spline with end points start, end and free parameters w."""
-    return curve_energy(speed2, args, sb, spline.coefficients(sb, start, end, w))
+    return curve_energy(metric, args, sb, spline.coefficients(sb, start, end, w))
 
 
-def energy_terms(speed2: Speed2, args, sb: spline.SplineBasis, start, end, w):
-    """(E, dE/dw (S + 1, d), d2E/dw2 ((S + 1) d, (S + 1) d)) from each point's value, gradient and Hessian
-    of f(z, v) = speed2(args, z, v) = v^T M(z) v, chained through the linear maps w -> (z_n, v_n).
+def energy_terms(metric, args, sb: spline.SplineBasis, start, end, w):
+    """(E, dE/dw (S + 1, d), d2E/dw2 ((S + 1) d, (S + 1) d)) from each site's value, gradient and Hessian of
+    f(x_n), chained through the linear maps w -> x_n = (z_n, v_n) (gauss: f = speed2) or (z_n, z_n+1)
+    (chord: f = chord2).
 
-    A point's Hessian columns along z come from jvps of the gradient (forward over reverse); its v-v
-    block is 2 M(z), by polarisation of f in v, which is quadratic: M_ab = (f(e_a + e_b) - f(2 e_a) / 4
-    - f(2 e_b) / 4) / 2, from values alone."""
+    A site's Hessian columns come from jvps of the gradient (forward over reverse). Under gauss its v-v block
+    is 2 M(z), by polarisation of f in v, which is quadratic: M_ab = (f(e_a + e_b) - f(2 e_a) / 4 - f(2 e_b) / 4) / 2,
+    from values alone, so only the d columns along z need jvps."""
+    m = as_metric(metric)
     d = start.shape[0]
     c = spline.coefficients(sb, start, end, w)
-    x = jnp.concatenate([spline.evaluate(sb, c), spline.evaluate(sb, c, order=1)], -1)  # (N, 2d)
-    value_grad = jax.value_and_grad(lambda x: speed2(args, x[:d], x[d:]))
-    eye = jnp.eye(d, dtype=x.dtype)
+    z = spline.evaluate(sb, c)
+    vn = sb.value @ sb.null  # (N, S + 1): dz_n/dw, per dimension
+    eye = jnp.eye(d, dtype=z.dtype)
+    if sb.rule == "gauss":
+        f2 = lambda x: m.speed2(args, x[:d], x[d:])  # noqa: E731
+        x = jnp.concatenate([z, spline.evaluate(sb, c, order=1)], -1)  # (N, 2d)
+        maps = jnp.stack([vn, sb.speed @ sb.null], 1)  # (N, 2, S + 1)
+        tangents = jnp.concatenate([eye, jnp.zeros_like(eye)], 1)  # along z
+    else:
+        chord2 = _chord2(m)
+        f2 = lambda x: chord2(args, x[:d], x[d:])  # noqa: E731
+        x = jnp.concatenate([z[:-1], z[1:]], -1)  # (N, 2d)
+        maps = jnp.stack([vn[:-1], vn[1:]], 1)
+        tangents = jnp.eye(2 * d, dtype=z.dtype)
+    value_grad = jax.value_and_grad(f2)
     a, b = np.triu_indices(d)
 
-    def point(x):
-        tangents = jnp.concatenate([eye, jnp.zeros_like(eye)], 1)  # along z
-        (f, g), (_, cols) = jax.vmap(lambda t: jax.jvp(value_grad, (x,), (t,)), out_axes=(None, 0))(tangents)  # (d, 2d)
-        pol = jax.vmap(lambda u: speed2(args, x[:d], u))(eye[a] + eye[b])  # f(e_a + e_b), a <= b
+    def site(x):
+        (f, g), (_, cols) = jax.vmap(lambda t: jax.jvp(value_grad, (x,), (t,)), out_axes=(None, 0))(tangents)
+        if sb.rule == "chord":
+            return f, g, cols
+        pol = jax.vmap(lambda u: m.speed2(args, x[:d], u))(eye[a] + eye[b])  # f(e_a + e_b), a <= b
         diag = pol[a == b]  # f(2 e_a) = 4 M_aa
-        m = jnp.zeros((d, d), x.dtype).at[a, b].set((pol - 0.25 * (diag[a] + diag[b])) / 2.0)
-        m = m + jnp.triu(m, 1).T
-        h = jnp.concatenate([cols, jnp.concatenate([cols[:, d:].T, 2.0 * m], 1)], 0)  # rows z then v
-        return f, g, h
+        mm = jnp.zeros((d, d), x.dtype).at[a, b].set((pol - 0.25 * (diag[a] + diag[b])) / 2.0)
+        mm = mm + jnp.triu(mm, 1).T
+        return f, g, jnp.concatenate([cols, jnp.concatenate([cols[:, d:].T, 2.0 * mm], 1)], 0)  # rows z then v
 
-    f, g, h = jax.vmap(point)(x)
-    maps = jnp.stack([sb.value @ sb.null, sb.speed @ sb.null], 1)  # (N, 2, S + 1): dz_n/dw and dv_n/dw, per dimension
+    f, g, h = jax.vmap(site)(x)
     grad = jnp.einsum("n,nsj,nsa->ja", sb.weight, maps, g.reshape(-1, 2, d))
     hess = jnp.einsum("n,nsj,ntl,nsatb->jalb", sb.weight, maps, maps, h.reshape(-1, 2, d, 2, d))
     return jnp.sum(sb.weight * f), grad, hess.reshape(w.size, w.size)
@@ -157,11 +213,11 @@ def energy_terms(speed2: Speed2, args, sb: spline.SplineBasis, start, end, w):
 _CURVATURE_STEPS = (0.01, 0.1, 1.0)  # newton: step lengths along the most negative curvature, in w units
 
 
-def _newton(speed2: Speed2, args, sb: spline.SplineBasis, cfg: GeodesicConfig):
+def _newton(metric, args, sb: spline.SplineBasis, cfg: GeodesicConfig):
     factors = 10.0 ** (jnp.arange(cfg.trials, dtype=jnp.float32) - 1.0)  # lambda x 0.1, 1, 10, ...
 
     def at(start, end, w):  # energy, gradient, the Hessian's eigen-decomposition and the stopping test
-        e, g, h = energy_terms(speed2, args, sb, start, end, w)
+        e, g, h = energy_terms(metric, args, sb, start, end, w)
         ev, q = jnp.linalg.eigh(h)
         qg = q.T @ g.reshape(-1)
         decrease = 0.5 * jnp.sum(qg**2 / (jnp.abs(ev) + 1e-30))  # what a full step would gain (the Newton decrement)
@@ -182,7 +238,7 @@ def _newton(speed2: Speed2, args, sb: spline.SplineBasis, cfg: GeodesicConfig):
         down = jnp.where(qg[0] > 0, -1.0, 1.0) * q[:, 0]  # the most negative curvature, downhill
         curvature = jnp.asarray(_CURVATURE_STEPS)[:, None] * down
         trial = r.w[None] + jnp.concatenate([newton, curvature]).reshape((-1,) + r.w.shape)
-        e_trial = jax.vmap(lambda w: energy(speed2, args, sb, r.start, r.end, w))(trial)
+        e_trial = jax.vmap(lambda w: energy(metric, args, sb, r.start, r.end, w))(trial)
         e_trial = e_trial.at[cfg.trials :].set(jnp.where(ev[0] < 0, e_trial[cfg.trials :], jnp.inf))
         best = jnp.argmin(e_trial)
         better = e_trial[best] < r.e
@@ -195,11 +251,11 @@ def _newton(speed2: Speed2, args, sb: spline.SplineBasis, cfg: GeodesicConfig):
     return init, step
 
 
-def _adam(speed2: Speed2, args, sb: spline.SplineBasis, cfg: GeodesicConfig):
+def _adam(metric, args, sb: spline.SplineBasis, cfg: GeodesicConfig):
     opt = optax.adam(cfg.lr)
 
     def at(start, end, w):
-        e, g = jax.value_and_grad(lambda w: energy(speed2, args, sb, start, end, w))(w)
+        e, g = jax.value_and_grad(lambda w: energy(metric, args, sb, start, end, w))(w)
         return e, g, jnp.max(jnp.abs(g)) <= cfg.tol * (1.0 + e)
 
     def init(start, end, w):
@@ -244,50 +300,62 @@ def _loop(step, runs: _Run, cfg: GeodesicConfig) -> _Run:
     return runs
 
 
-def minimise(speed2: Speed2, args, sb: spline.SplineBasis, starts, ends, w0, cfg: GeodesicConfig) -> Geodesic:
+def minimise(metric, args, sb: spline.SplineBasis, starts, ends, w0, cfg: GeodesicConfig) -> Geodesic:
     """Geodesics between starts and ends (B, d) from free parameters w0 (B, S + 1, d), one loop for the batch."""
-    init, step = (_newton if cfg.method == "newton" else _adam)(speed2, args, sb, cfg)
+    init, step = (_newton if cfg.method == "newton" else _adam)(metric, args, sb, cfg)
     runs = jax.vmap(init)(starts, ends, w0)
     e0 = runs.e
     runs = _loop(step, runs, cfg)
     trace = jnp.where(jnp.arange(cfg.iters) < runs.i[:, None], runs.trace, runs.e[:, None])
     c = jax.vmap(spline.coefficients, in_axes=(None, 0, 0, 0))(sb, starts, ends, runs.w)
-    return Geodesic(jax.vmap(lambda c: spline.evaluate(sb, c))(c), c, runs.e, e0, trace, runs.i)
+    if cfg.check:
+        fine = spline.basis(cfg.segments, cfg.check * sb.weight.shape[0], sb.rule)
+        resolved = jax.vmap(lambda c: curve_energy(metric, args, fine, c))(c)
+    else:
+        resolved = jnp.full_like(runs.e, jnp.nan)
+    return Geodesic(jax.vmap(lambda c: spline.evaluate(sb, c))(c), c, runs.e, e0, trace, runs.i, resolved)
 
 
-def shortest(speed2: Speed2, args, sb: spline.SplineBasis, start, end, cfg: GeodesicConfig, w0=None) -> Geodesic:
+def shortest(metric, args, sb: spline.SplineBasis, start, end, cfg: GeodesicConfig, w0=None) -> Geodesic:
     """Minimise the curve energy between start and end (d,); w0 (S + 1, d) overrides the straight-line start."""
     w0 = spline.straight(sb, start, end) if w0 is None else w0
-    return jax.tree.map(lambda x: x[0], minimise(speed2, args, sb, start[None], end[None], w0[None], cfg))
+    return jax.tree.map(lambda x: x[0], minimise(metric, args, sb, start[None], end[None], w0[None], cfg))
 
 
-def _edge_length(speed2: Speed2, args, a, b, samples: int):
-    """Metric length of the straight segment a -> b: sqrt of its mean squared speed at `samples` midpoints."""
+def _edge_length(metric: CurveMetric, args, a, b, samples: int):
+    """Metric length of the straight segment a -> b: the decoded length of its `samples` chords where the metric
+    has chord2, else sqrt of its mean squared speed at `samples` midpoints."""
+    if metric.chord2 is not None:
+        s = jnp.arange(samples + 1) / samples
+        p = a + s[:, None] * (b - a)
+        return jnp.sum(jnp.sqrt(jax.vmap(lambda u, v: metric.chord2(args, u, v))(p[:-1], p[1:])))
     s = (jnp.arange(samples) + 0.5) / samples
-    return jnp.sqrt(jnp.mean(jax.vmap(lambda si: speed2(args, a + si * (b - a), b - a))(s)))
+    return jnp.sqrt(jnp.mean(jax.vmap(lambda si: metric.speed2(args, a + si * (b - a), b - a))(s)))
 
 
-def graph(speed2: Speed2, args, nodes, k: int, samples: int):
+def graph(metric, args, nodes, k: int, samples: int):
     """Weights (V, V) of the symmetric k-nearest-neighbour graph over nodes (V, d); inf where no edge."""
+    metric = as_metric(metric)
     v = nodes.shape[0]
     d2 = jnp.sum((nodes[:, None] - nodes[None]) ** 2, -1) + jnp.where(jnp.eye(v, dtype=bool), jnp.inf, 0.0)
     nbr = jnp.argsort(d2, axis=1)[:, :k]
-    lengths = jax.vmap(lambda a, bs: jax.vmap(lambda b: _edge_length(speed2, args, a, b, samples))(nodes[bs]))(nodes, nbr)
+    lengths = jax.vmap(lambda a, bs: jax.vmap(lambda b: _edge_length(metric, args, a, b, samples))(nodes[bs]))(nodes, nbr)
     w = jnp.full((v, v), jnp.inf).at[jnp.arange(v)[:, None], nbr].set(lengths)
     return jnp.minimum(w, w.T)
 
 
-def graph_path(speed2: Speed2, args, nodes, weights, sb: spline.SplineBasis, start, end, k: int, samples: int):
+def graph_path(metric, args, nodes, weights, sb: spline.SplineBasis, start, end, k: int, samples: int):
     """Free parameters w of the spline through the graph's shortest path from start to end."""
+    metric = as_metric(metric)
     v = nodes.shape[0]
     pts = jnp.concatenate([nodes, start[None], end[None]])
     links = []
     for p in (start, end):  # start (row v) and end (row v + 1) join their k nearest nodes
         nbr = jnp.argsort(jnp.sum((nodes - p) ** 2, -1))[:k]
-        links.append(jnp.full(v, jnp.inf).at[nbr].set(jax.vmap(lambda b: _edge_length(speed2, args, p, b, samples))(nodes[nbr])))
+        links.append(jnp.full(v, jnp.inf).at[nbr].set(jax.vmap(lambda b: _edge_length(metric, args, p, b, samples))(nodes[nbr])))
     w = jnp.full((v + 2, v + 2), jnp.inf).at[:v, :v].set(weights)
     w = w.at[v, :v].set(links[0]).at[:v, v].set(links[0]).at[v + 1, :v].set(links[1]).at[:v, v + 1].set(links[1])
-    w = w.at[v, v + 1].set(_edge_length(speed2, args, start, end, samples)).at[v + 1, v].set(w[v, v + 1])
+    w = w.at[v, v + 1].set(_edge_length(metric, args, start, end, samples)).at[v + 1, v].set(w[v, v + 1])
 
     def relax(s):  # Bellman-Ford: distance from start through one more edge
         dist, _, _, i = s
@@ -306,25 +374,29 @@ def graph_path(speed2: Speed2, args, nodes, weights, sb: spline.SplineBasis, sta
     return spline.through(sb, start, end, path)
 
 
-def solver(speed2: Speed2, cfg: GeodesicConfig = GeodesicConfig(), nodes=None):
+def solver(metric, cfg: GeodesicConfig = GeodesicConfig(), nodes=None):
     """jitted (args, starts (B, d), ends (B, d)) -> batched `Geodesic`, one loop for all pairs, split over
-    the local devices (`fabrax.sharding.batched`).
+    the local devices (`fabrax.sharding.batched`). metric: a `CurveMetric` (rule chord needs its chord2),
+    or speed2 alone for rule gauss.
     nodes (V, d): latent points on the data for the graph initialisation (None: straight-line start)."""
-    sb = spline.basis(cfg.segments, cfg.points)
+    metric = as_metric(metric)
+    if cfg.rule == "chord":
+        _chord2(metric)
+    sb = cfg.basis()
     lines = jax.vmap(lambda a, b: spline.straight(sb, a, b))
     if nodes is None:
-        return jax.jit(lambda args, starts, ends: sharding.batched(lambda a, b: minimise(speed2, args, sb, a, b, lines(a, b), cfg))(starts, ends))
+        return jax.jit(lambda args, starts, ends: sharding.batched(lambda a, b: minimise(metric, args, sb, a, b, lines(a, b), cfg))(starts, ends))
     nodes = jnp.asarray(nodes, jnp.float32)
 
     def initial(args, weights, a, b):  # the graph path's spline or the straight line, whichever has lower energy
-        w_graph = graph_path(speed2, args, nodes, weights, sb, a, b, cfg.neighbours, cfg.samples)
+        w_graph = graph_path(metric, args, nodes, weights, sb, a, b, cfg.neighbours, cfg.samples)
         w_line = spline.straight(sb, a, b)
-        e = lambda w: energy(speed2, args, sb, a, b, w)  # noqa: E731
+        e = lambda w: energy(metric, args, sb, a, b, w)  # noqa: E731
         return jnp.where(e(w_graph) < e(w_line), w_graph, w_line)
 
     def run(args, starts, ends):
-        weights = graph(speed2, args, nodes, cfg.neighbours, cfg.samples)
+        weights = graph(metric, args, nodes, cfg.neighbours, cfg.samples)
         w0 = lambda a, b: jax.vmap(lambda a, b: initial(args, weights, a, b))(a, b)  # noqa: E731
-        return sharding.batched(lambda a, b: minimise(speed2, args, sb, a, b, w0(a, b), cfg))(starts, ends)
+        return sharding.batched(lambda a, b: minimise(metric, args, sb, a, b, w0(a, b), cfg))(starts, ends)
 
     return jax.jit(run)

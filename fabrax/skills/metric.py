@@ -9,7 +9,11 @@ evaluated at each anchor (the decoded end-effector position in task space, eq.
 
     v^T M(z) v = sum_k a(anchor_k) |attached_k|^2 + |free|^2,
 
-and M(z) itself is J^T W J with J = d rows / dv (`jax.jacfwd`). Orientation rows
+and M(z) itself is J^T W J with J = d rows / dv (`jax.jacfwd`). A model's
+`chord(za, zb)` returns the same triple for the chord za -> zb (differences of
+the decoded quantities, anchored at midpoints): its `chord2` is the squared
+decoded length of the chord, which the geodesic's "chord" rule sums
+(`fabrax.skills.geodesic`). Orientation rows
 see a flat ambient metric, as in §4.4.1. Obstacles are an argument, not a
 constant: moving one reshapes the metric without retraining or recompiling.
 """
@@ -21,6 +25,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 from flax import nnx
+
+from fabrax.skills.geodesic import CurveMetric
 
 
 class Obstacles(NamedTuple):
@@ -62,6 +68,12 @@ def speed2(model, obs: Obstacles, z, v):
     return jnp.sum(ambient(obs, anchors) * jnp.sum(attached**2, -1)) + jnp.sum(free**2)
 
 
+def chord2(model, obs: Obstacles, za, zb):
+    """Squared decoded length of the chord za -> zb under the same ambient metric (-> speed2 dt^2 as zb -> za)."""
+    anchors, attached, free = model.chord(za, zb)
+    return jnp.sum(ambient(obs, anchors) * jnp.sum(attached**2, -1)) + jnp.sum(free**2)
+
+
 def metric(model, obs: Obstacles, z):
     """M(z) (d, d): J^T W J with J the Jacobian of the rows in v (forward mode)."""
     zero = jnp.zeros_like(z)
@@ -77,10 +89,25 @@ def magnification(model, obs: Obstacles, z):
 
 
 def speed2_fn(graphdef):
-    """`geodesic.solver`'s speed2(args, z, v) with args = (model state, obstacles), the model rebuilt from its graph."""
+    """speed2(args, z, v) with args = (model state, obstacles), the model rebuilt from its graph."""
 
     def f(args, z, v):
         state, obs = args
         return speed2(nnx.merge(graphdef, state), obs, z, v)
 
     return f
+
+
+def chord2_fn(graphdef):
+    """chord2(args, za, zb) with args = (model state, obstacles), the model rebuilt from its graph."""
+
+    def f(args, za, zb):
+        state, obs = args
+        return chord2(nnx.merge(graphdef, state), obs, za, zb)
+
+    return f
+
+
+def curve_metric(graphdef) -> CurveMetric:
+    """The model's metric for `geodesic.solver` (both rules), args = (model state, obstacles)."""
+    return CurveMetric(speed2_fn(graphdef), chord2_fn(graphdef))

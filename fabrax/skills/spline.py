@@ -13,15 +13,17 @@ derivative of a_k t^k at t = 0 is k (k - 1) a_k.
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax import struct
+
+RULES = ("chord", "gauss")
 
 
-class SplineBasis(NamedTuple):
-    """Static matrices of one spline family, built by `basis`."""
+@struct.dataclass
+class SplineBasis:
+    """Static matrices of one spline family and its energy discretisation, built by `basis`."""
 
     ends: jax.Array  # (4S, 2): coefficients from [start; end]
     null: jax.Array  # (4S, S + 1): orthonormal null-space basis
@@ -29,8 +31,9 @@ class SplineBasis(NamedTuple):
     speed: jax.Array  # (N, 4S): c'(t_n)
     line: jax.Array  # (4S, 2): coefficients of the straight line start -> end
     fit: jax.Array  # (S + 1, N): least-squares free parameters of the spline through N given points
-    t: jax.Array  # (N,) evaluation times: Gauss-Legendre nodes, N / S per segment
-    weight: jax.Array  # (N,) quadrature weights (sum 1): int_0^1 f dt ~ sum weight f(t)
+    t: jax.Array  # (N,) evaluation times: Gauss-Legendre nodes, N / S per segment; chord: N + 1 equally spaced vertices
+    weight: jax.Array  # (N,) quadrature weights (sum 1): int_0^1 f dt ~ sum weight f(t); chord: 1 / dt per chord
+    rule: str = struct.field(pytree_node=False, default="gauss")
 
 
 def _powers(t, seg, segments: int, order: int) -> np.ndarray:
@@ -59,28 +62,40 @@ def constraints(segments: int) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(a_rows), np.asarray(b_rows)
 
 
-def basis(segments: int = 5, points: int = 20) -> SplineBasis:
-    """Spline family of `segments` cubic pieces, evaluated at `points` Gauss-Legendre nodes (points / segments
-    per piece, at least 3): the quadrature integrates polynomials of degree 5 exactly on each piece, so under a
-    constant metric the discretised energy is the curve energy itself and its minimiser the constant-speed line."""
+def basis(segments: int = 5, points: int = 20, rule: str = "gauss") -> SplineBasis:
+    """Spline family of `segments` cubic pieces with the energy discretised by `rule`:
+
+    - "gauss": `points` Gauss-Legendre nodes (points / segments per piece, at least 3), which integrate
+      polynomials of degree 5 exactly on each piece, so under a constant metric the discretised energy is
+      the curve energy itself and its minimiser the constant-speed line;
+    - "chord": `points` equal chords between points + 1 vertices (t = 0, 1 / N, ..., 1), the energy of
+      the decoded polyline (`fabrax.skills.geodesic`)."""
+    if rule not in RULES:
+        raise ValueError(f"geodesic.rule: '{rule}' is not one of {', '.join(RULES)}")
     a, b = constraints(segments)
     ends = np.linalg.pinv(a) @ b
     _, sv, vt = np.linalg.svd(a)
     rank = int(np.sum(sv > 1e-10 * sv[0]))
     null = vt[rank:].T
     assert null.shape[1] == segments + 1, "the C^2 constraints lost rank"
-    per = max(3, int(round(points / segments)))
-    x, w = np.polynomial.legendre.leggauss(per)
-    t = ((np.arange(segments)[:, None] + 0.5 * (x[None] + 1.0)) / segments).reshape(-1)
-    weight = np.tile(0.5 * w / segments, segments)
-    seg = np.repeat(np.arange(segments), per)
+    if rule == "gauss":
+        per = max(3, int(round(points / segments)))
+        x, w = np.polynomial.legendre.leggauss(per)
+        t = ((np.arange(segments)[:, None] + 0.5 * (x[None] + 1.0)) / segments).reshape(-1)
+        weight = np.tile(0.5 * w / segments, segments)
+        seg = np.repeat(np.arange(segments), per)
+    else:
+        t = np.linspace(0.0, 1.0, points + 1)
+        weight = np.full(points, float(points))
+        seg = np.minimum((t * segments).astype(int), segments - 1)
     line = np.zeros((4 * segments, 2))
     knots = np.arange(segments) / segments
     line[4 * np.arange(segments), 0], line[4 * np.arange(segments), 1] = 1.0 - knots, knots
     line[4 * np.arange(segments) + 1, 0], line[4 * np.arange(segments) + 1, 1] = -1.0, 1.0
     value = _powers(t, seg, segments, 0)
     f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
-    return SplineBasis(f(ends), f(null), f(value), f(_powers(t, seg, segments, 1)), f(line), f(np.linalg.pinv(value @ null)), f(t), f(weight))
+    speed = _powers(t, seg, segments, 1)
+    return SplineBasis(f(ends), f(null), f(value), f(speed), f(line), f(np.linalg.pinv(value @ null)), f(t), f(weight), rule)
 
 
 def coefficients(sb: SplineBasis, start, end, w):

@@ -42,13 +42,18 @@ class VAEConfig:
     rbf_lr: float = 0.03  # stage 2 (log weights)
     clip: float = 10.0  # gradient global-norm clip
     centers: int = 64  # RBF kernels
-    bandwidth: float = 0.5  # kernel width in units of its cluster's spread
+    bandwidth: float = 1.0  # kernel width in units of its cluster's spread; at 0.5 the variance's walls were thinner than
+    # a 20-point curve's spacing on J/C and LASA (docs/results.md "Geodesics that resolve the metric")
     zeta: float = 1e-2  # precision floor far from the data (variance up to 1 / zeta, in data units)
     stage1_std: float = 0.05  # fixed decoder std of stage 1, in data units (a learned one lets the means underfit)
     stage1_kappa: float = 100.0  # fixed vMF concentration of stage 1
     min_std: float = 0.01  # standard-deviation floor in data units: a coordinate the demonstrations hold
     # constant (a drawing plane) would otherwise drive its variance to zero and the likelihood to infinity
     max_kappa: float = 1e4  # vMF concentration ceiling, for the same reason (an orientation held throughout)
+    antipodal: bool = True  # the encoder sees every pose with q and -q (§3.1.2's antipodal copies) either way. True: the
+    # decoder's likelihood is the antipodal vMF mixture (eq. 17), which leaves its sign free; False: one vMF (eq. 15) of the
+    # quaternion on its set's hemisphere. A decoder that flipped its sign inside the data (J/C, 1 of 4 training seeds) made a
+    # near-zero quaternion mean there that no curve discretisation resolves (docs/results.md "Geodesics that resolve the metric")
     lambda_x: float = 1.0  # eq. 18 weight of the position likelihood
     lambda_q: float = 1.0  # eq. 18 weight of the orientation likelihood
     seed: int = 0
@@ -83,10 +88,12 @@ def _gauss(x, mean, std):
 
 
 class TaskVAE(nnx.Module):
-    """End-effector poses in R^3 x S^3 (§3.1): Gaussian positions, antipodal vMF quaternions (eqs. 13-17)."""
+    """End-effector poses in R^3 x S^3 (§3.1): Gaussian positions, vMF quaternions (eqs. 13-17; antipodal mixture or one
+    vMF on a hemisphere, `VAEConfig.antipodal`)."""
 
     def __init__(self, cfg: VAEConfig, x_mean, x_scale, *, rngs: nnx.Rngs):
         d, h = cfg.latent, cfg.hidden
+        self.antipodal = cfg.antipodal
         self.x_mean, self.x_scale = nnx.Variable(jnp.asarray(x_mean, jnp.float32)), nnx.Variable(jnp.asarray(x_scale, jnp.float32))
         self.encoder = Encoder(7, d, h, rngs=rngs)
         self.mean_x, self.mean_q = MLP([d, h, h, 3], rngs=rngs), MLP([d, h, h, 4], rngs=rngs)
@@ -127,24 +134,33 @@ class TaskVAE(nnx.Module):
         return jnp.sum(self.std_x(z) ** 2) + 1.0 / self.kappa(z)
 
     def log_lik(self, z, x, q):
-        """(log p(x|z), log p(q|z)) of one sample, eqs. 14 and 17."""
-        return _gauss(x, self.decode_x(z), self.std_x(z)), vmf.log_antipodal(q, self.decode_q(z), self.kappa(z))
+        """(log p(x|z), log p(q|z)) of one sample, eqs. 14 and 17 (or 15)."""
+        log_q = vmf.log_antipodal if self.antipodal else vmf.log_vmf
+        return _gauss(x, self.decode_x(z), self.std_x(z)), log_q(q, self.decode_q(z), self.kappa(z))
+
+    def embed(self, z):
+        """The decoded quantities whose pullback is the metric (eqs. 21-25): the position mean and std
+        (attached to the decoded position) and the quaternion mean and spread kappa^-1/2 (free)."""
+        x = self.decode_x(z)
+        return x[None], jnp.concatenate([x, self.std_x(z)])[None], jnp.concatenate([self.decode_q(z), jax.lax.rsqrt(self.kappa(z))[None]])
 
     def rows(self, z, v):
-        """Eqs. 21-25: velocities of the position mean and std (attached to the decoded position) and of the
-        quaternion mean and spread kappa^-1/2 (free rows)."""
-        x, dx = jax.jvp(self.decode_x, (z,), (v,))
-        _, dsx = jax.jvp(self.std_x, (z,), (v,))
-        _, dq = jax.jvp(self.decode_q, (z,), (v,))
-        _, dsq = jax.jvp(lambda z: jax.lax.rsqrt(self.kappa(z))[None], (z,), (v,))
-        return x[None], jnp.concatenate([dx, dsx])[None], jnp.concatenate([dq, dsq])
+        """Velocities of `embed` along the latent velocity v: (anchors (1, 3), attached (1, 6), free (5,))."""
+        (x, _, _), (_, da, df) = jax.jvp(self.embed, (z,), (v,))
+        return x, da, df
+
+    def chord(self, za, zb):
+        """Differences of `embed` over the chord za -> zb, anchored at the decoded positions' midpoint."""
+        (xa, aa, fa), (xb, ab, fb) = self.embed(za), self.embed(zb)
+        return 0.5 * (xa + xb), ab - aa, fb - fa
 
     def loss(self, data, key, cfg: VAEConfig):
-        """Negative weighted ELBO, eq. 18, one reparameterised sample per point."""
-        x, q = data
+        """Negative weighted ELBO, eq. 18, one reparameterised sample per point: data (x, q the encoder sees, q the
+        decoder's target)."""
+        x, q, target = data
         m, logv = self.encode(x, q)
         z = m + jnp.exp(0.5 * logv) * jax.random.normal(key, m.shape)
-        lx, lq = jax.vmap(self.log_lik)(z, x, q)
+        lx, lq = jax.vmap(self.log_lik)(z, x, target)
         return -jnp.mean(cfg.lambda_x * lx + cfg.lambda_q * lq - _kl(m, logv))
 
 
@@ -207,6 +223,15 @@ class JointVAE(nnx.Module):
         _, (dp_s, do_s) = jax.jvp(self.fk, (theta,), (dsd,))
         return p, jnp.concatenate([dp_m, dp_s], -1), jnp.concatenate([do_m, do_s])
 
+    def chord(self, za, zb):
+        """`rows` over the chord za -> zb: the FK layer's point and orientation differences between the decoded
+        means, and the std difference through the FK Jacobian at the means' midpoint (eq. 28's J_fk J_sigma),
+        anchored at the points' midpoints."""
+        ta, tb = self.decode(za), self.decode(zb)
+        (pa, oa), (pb, ob) = self.fk(ta), self.fk(tb)
+        _, (dp_s, do_s) = jax.jvp(self.fk, (0.5 * (ta + tb),), (self.std(zb) - self.std(za),))
+        return 0.5 * (pa + pb), jnp.concatenate([pb - pa, dp_s], -1), jnp.concatenate([ob - oa, do_s])
+
     def loss(self, data, key, cfg: VAEConfig):
         """Negative ELBO of eq. 26: log p(theta|z) - log V(mu(z)) - KL."""
         (theta,) = data
@@ -247,13 +272,17 @@ def fit(model, data, cfg: VAEConfig, codes_of) -> dict[str, np.ndarray]:
 
 
 def fit_task(x: np.ndarray, q: np.ndarray, cfg: VAEConfig = VAEConfig()) -> tuple[TaskVAE, dict]:
-    """Train a task-space VAE on positions (n, 3) and unit quaternions (n, 4) plus their antipodal copies (§3.1.2)."""
+    """Train a task-space VAE on positions (n, 3) and unit quaternions (n, 4) plus their antipodal copies (§3.1.2); the
+    decoder's target is each copy itself (cfg.antipodal, eq. 17) or the quaternion on its set's hemisphere (eq. 15)."""
     x, q = np.asarray(x, np.float32), np.asarray(q, np.float32)
     _check(x, "positions", 3), _check(q, "quaternions", 4)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    if not cfg.antipodal:
+        q = hemisphere(q)
     x2, q2 = np.concatenate([x, x]), np.concatenate([q, -q])
+    target = q2 if cfg.antipodal else np.concatenate([q, q])
     model = TaskVAE(cfg, x.mean(0), np.full(3, x.std(0).max() + 1e-6), rngs=nnx.Rngs(cfg.seed))
-    log = fit(model, (jnp.asarray(x2), jnp.asarray(q2)), cfg, lambda m: m.encode(x2, q2)[0])
+    log = fit(model, (jnp.asarray(x2), jnp.asarray(q2), jnp.asarray(target)), cfg, lambda m: m.encode(x2, q2)[0])
     return model, log
 
 
@@ -264,6 +293,26 @@ def fit_joint(robot, theta: np.ndarray, cfg: VAEConfig = VAEConfig(), tcp: str =
     model = JointVAE(cfg, robot, theta.mean(0), theta.std(0) + 1e-3, tcp, rngs=nnx.Rngs(cfg.seed))
     log = fit(model, (jnp.asarray(theta),), cfg, lambda m: m.encode(theta)[0])
     return model, log
+
+
+def hemisphere(q: np.ndarray, limit_deg: float = 80.0) -> np.ndarray:
+    """Unit quaternions (n, 4) with the sign that puts them on the hemisphere of their principal axis (the leading
+    eigenvector of sum q q^T, the mean orientation). Refuses a set with a quaternion more than `limit_deg` from that
+    axis (a rotation beyond 2 limit_deg from the mean), which no hemisphere holds away from its rim."""
+    axis = _principal_axis(q)
+    dots = q @ axis
+    if np.min(np.abs(dots)) < np.cos(np.deg2rad(limit_deg)):
+        raise ValueError(
+            f"quaternions: orientations spread more than {2 * limit_deg:.0f} degrees of rotation from their mean; "
+            "train with vae.antipodal=true (the antipodal vMF mixture)"
+        )
+    return np.where(dots[:, None] < 0, -q, q).astype(np.float32)
+
+
+def _principal_axis(q: np.ndarray) -> np.ndarray:
+    """The leading eigenvector of sum q q^T, signed towards the set's majority."""
+    axis = np.linalg.eigh(q.T.astype(np.float64) @ q)[1][:, -1]
+    return axis if np.sum(q @ axis) >= 0 else -axis
 
 
 def _check(a: np.ndarray, what: str, width: int) -> None:
