@@ -56,6 +56,18 @@ def obstacles(centers=(), radii=(), eta: float = 0.0, capacity: int | None = Non
 NONE = obstacles()
 
 
+def embedding_rows(embed, z, v):
+    """`rows` of a model whose metric is the pullback of embed(z) -> (anchors, attached, free): its velocities along v."""
+    (anchors, _, _), (_, attached, free) = jax.jvp(embed, (z,), (v,))
+    return anchors, attached, free
+
+
+def embedding_chord(embed, za, zb):
+    """`chord` of such a model: the differences of embed over za -> zb, anchored at the anchors' midpoints."""
+    (xa, aa, fa), (xb, ab, fb) = embed(za), embed(zb)
+    return 0.5 * (xa + xb), ab - aa, fb - fa
+
+
 def ambient(obs: Obstacles, x):
     """Eq. 30's scalar factor a(x) at points x (..., 3): 1 + eta sum_o exp(-|x - o|^2 / r_o^2)."""
     d2 = jnp.sum((x[..., None, :] - obs.centers) ** 2, -1)

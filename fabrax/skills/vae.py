@@ -28,6 +28,7 @@ from flax import nnx, serialization
 
 from fabrax.robot.kinematics import frame_transforms
 from fabrax.skills import vmf
+from fabrax.skills.metric import embedding_chord, embedding_rows
 from fabrax.skills.rbf import RBFPrecision, RBFWeight
 from fabrax.state_io import from_flat, to_flat
 
@@ -146,13 +147,11 @@ class TaskVAE(nnx.Module):
 
     def rows(self, z, v):
         """Velocities of `embed` along the latent velocity v: (anchors (1, 3), attached (1, 6), free (5,))."""
-        (x, _, _), (_, da, df) = jax.jvp(self.embed, (z,), (v,))
-        return x, da, df
+        return embedding_rows(self.embed, z, v)
 
     def chord(self, za, zb):
         """Differences of `embed` over the chord za -> zb, anchored at the decoded positions' midpoint."""
-        (xa, aa, fa), (xb, ab, fb) = self.embed(za), self.embed(zb)
-        return 0.5 * (xa + xb), ab - aa, fb - fa
+        return embedding_chord(self.embed, za, zb)
 
     def loss(self, data, key, cfg: VAEConfig):
         """Negative weighted ELBO, eq. 18, one reparameterised sample per point: data (x, q the encoder sees, q the
