@@ -296,3 +296,41 @@ def test_box_solve_is_the_metric_projection(fabric):
     a_metric, a_shrink = solve_in_box(Spec(Mb, fb), -box, box), solve_shrinking(Spec(Mb, fb), -box, box)
     # the metric projection keeps the barrier's +2 along u and saturates joint 0; shrinking loses part of it
     assert float(u @ a_metric) > 1.99 and abs(float(a_metric[0]) - 10.0) < 1e-4 and float(u @ a_shrink) < 1.98
+
+
+def _box_rounds(M, f, lo, hi, rounds):
+    """Reference: the primal-dual active-set rounds of `solve_in_box`, `rounds` of them with no early stop."""
+    from fabrax.fabrics.linalg import cholesky_solve
+
+    cost = lambda a: 0.5 * a @ (M @ a) + f @ a  # noqa: E731
+    a = jnp.clip(-cholesky_solve(M, f), lo, hi)
+    best, best_cost, at_lo, at_hi = a, cost(a), a <= lo, a >= hi
+    for _ in range(rounds):
+        free = ~(at_lo | at_hi)
+        b = jnp.where(at_lo, lo, jnp.where(at_hi, hi, 0.0))
+        a = cholesky_solve(jnp.where(free[:, None] & free[None, :], M, 0.0) + jnp.diag(jnp.where(free, 0.0, 1.0)), jnp.where(free, -(f + M @ b), b))
+        grad = M @ a + f
+        at_lo, at_hi = (at_lo & (grad >= 0.0)) | (free & (a < lo)), (at_hi & (grad <= 0.0)) | (free & (a > hi))
+        c = cost(jnp.clip(a, lo, hi))
+        best, best_cost = jnp.where(c < best_cost, jnp.clip(a, lo, hi), best), jnp.minimum(c, best_cost)
+    return best
+
+
+def test_box_solve_stops_when_the_active_sets_repeat():
+    """solve_in_box leaves its loop once a round repeats the active sets; the result equals all 8 rounds
+    run (float rounding aside), also on systems that need several rounds and on free solutions."""
+    from fabrax.fabrics import solve_in_box
+
+    rng = np.random.default_rng(7)
+    cases = []
+    for k in range(400):
+        a = rng.normal(size=(7, 7))
+        M = a @ a.T + 0.05 * np.eye(7) + (300.0 * np.outer(*(2 * [rng.normal(size=7)])) if k % 2 else 0.0)
+        scale = 10.0 if k % 4 < 2 else 0.1  # 0.1: mostly inside the box
+        cases.append((M, rng.normal(size=7) * scale, -rng.uniform(0.5, 3, 7), rng.uniform(0.5, 3, 7)))
+    M, f, lo, hi = (jnp.asarray(np.stack(c), jnp.float32) for c in zip(*cases))
+    got = jax.jit(jax.vmap(lambda M, f, lo, hi: solve_in_box(Spec(M, f), lo, hi)))(M, f, lo, hi)
+    want = jax.jit(jax.vmap(lambda M, f, lo, hi: _box_rounds(M, f, lo, hi, 8)))(M, f, lo, hi)
+    assert jnp.allclose(got, want, rtol=1e-5, atol=1e-5)
+    one = jax.jit(jax.vmap(lambda M, f, lo, hi: _box_rounds(M, f, lo, hi, 1)))(M, f, lo, hi)
+    assert not jnp.allclose(one, want, rtol=1e-5, atol=1e-5)  # some systems need more than one round

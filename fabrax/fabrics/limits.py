@@ -49,8 +49,9 @@ def solve_in_box(spec: Spec, lo: jax.Array, hi: jax.Array, iters: int = 8) -> ja
     others give way, where the uniform (M + alpha I) of thesis eq. 3.9 shrinks
     every direction, the barrier's braking with them. Solved by primal-dual
     active sets (free joints solve the reduced system, bounds are released by
-    the sign of their multiplier) for `iters` rounds; the best feasible iterate
-    is returned, so the result always lies in the box.
+    the sign of their multiplier) for at most `iters` rounds, stopping once the
+    active sets repeat; the best feasible iterate is returned, so the result
+    always lies in the box. A `lax.while_loop`: differentiable in forward mode only.
     """
     M, f = spec.M, spec.f
     n = M.shape[-1]
@@ -60,22 +61,29 @@ def solve_in_box(spec: Spec, lo: jax.Array, hi: jax.Array, iters: int = 8) -> ja
         return 0.5 * a @ (M @ a) + f @ a
 
     a = jnp.clip(-cholesky_solve(M, f), lo, hi)
-    best, best_cost = a, cost(a)
     at_lo, at_hi = a <= lo, a >= hi
-    for _ in range(iters):
+
+    def round_(state):
+        k, at_lo, at_hi, best, best_cost, _ = state
         bound = at_lo | at_hi
         b = jnp.where(at_lo, lo, jnp.where(at_hi, hi, 0.0))
         free = ~bound
         reduced = jnp.where(free[:, None] & free[None, :], M, 0.0) + jnp.where(bound, 1.0, 0.0)[:, None] * eye
         a = cholesky_solve(reduced, jnp.where(free, -(f + M @ b), b))
         grad = M @ a + f  # multipliers of the bound joints
-        at_lo = (at_lo & (grad >= 0.0)) | (free & (a < lo))
-        at_hi = (at_hi & (grad <= 0.0)) | (free & (a > hi))
+        new_lo = (at_lo & (grad >= 0.0)) | (free & (a < lo))
+        new_hi = (at_hi & (grad <= 0.0)) | (free & (a > hi))
         clipped = jnp.clip(a, lo, hi)
         c = cost(clipped)
         better = c < best_cost
-        best, best_cost = jnp.where(better, clipped, best), jnp.where(better, c, best_cost)
-    return best
+        changed = jnp.any((new_lo != at_lo) | (new_hi != at_hi))
+        return k + 1, new_lo, new_hi, jnp.where(better, clipped, best), jnp.where(better, c, best_cost), changed
+
+    # A round is a function of the active sets alone: once they repeat, every further round repeats it
+    # and leaves `best` as it is, so the loop stops there (the same result as `iters` rounds). With no
+    # bound active, the first round re-solves the free system and repeats: no round at all.
+    state = (jnp.zeros((), jnp.int32), at_lo, at_hi, a, cost(a), jnp.any(at_lo | at_hi))
+    return jax.lax.while_loop(lambda s: (s[0] < iters) & s[5], round_, state)[3]
 
 
 def solve_shrinking(spec: Spec, lo: jax.Array, hi: jax.Array, rungs: int = 12, ratio: float = 4.0) -> jax.Array:
