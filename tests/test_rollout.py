@@ -146,6 +146,25 @@ def test_population_matches_vmap_and_stops_when_enough_arrived(fabric):
     assert np.all(np.asarray(early.segment_times)[stopped, -1] == pytest.approx(3.0))  # unfinished: charged the budget
 
 
+def test_population_shrinks_to_its_running_arms(fabric):
+    """32 commands that take from a few to hundreds of steps: the population that goes on with its
+    running arms alone (shrink=4, sub-batch of 8) returns the unshrunk population's trajectories,
+    with and without a stop once `enough` (28) arrived."""
+    fab, params = fabric
+    rng = np.random.default_rng(5)
+    mids = [READY + s * (GOAL - READY) + rng.normal(scale=0.3 * s, size=7) for s in rng.uniform(0.0, 1.5, 32)]
+    seqs, scene = _sequences(fab, params, [jnp.asarray(m, jnp.float32) for m in mids]), sc.from_dict(BOX)
+    for enough in (None, 28):
+        kw = dict(dt=0.01, steps=300, enough=enough)
+        run = lambda k: jax.jit(lambda s: rollout_population(fab, s, scene, READY, jnp.zeros(7), fab.reached, shrink=k, **kw))(seqs)  # noqa: E731
+        plain, shrunk = run(1), run(4)
+        lengths = np.asarray(plain.length)
+        assert np.sort(lengths)[-9] < np.max(lengths) - 50  # the last 8 arms run 50 steps or more alone
+        assert np.array_equal(lengths, np.asarray(shrunk.length))
+        assert np.allclose(np.asarray(plain.q), np.asarray(shrunk.q), atol=1e-4)
+        assert np.array_equal(np.asarray(plain.reached), np.asarray(shrunk.reached))
+
+
 def test_patience_ends_a_segment_that_makes_no_progress(fabric, panda):
     """A box around the hand at the command: the arm presses on it; with patience the segment
     ends early and is charged t_max, and the next command runs from there."""

@@ -7,8 +7,9 @@ goal test holds or `steps` steps pass; its duration is t*_i (eq. 2). The last
 segment is the final goal. Steps run in chunks of a `lax.scan` inside a
 `lax.while_loop` that stops once the arm is done; under `jax.vmap` the loop
 runs until every arm is done (early exit for the batch) and finished arms
-hold still. `rollout_population` runs many sequences from one start and may
-stop the whole population once enough of it has arrived. All of it is one pure function: jit it, vmap it over arms, goals
+hold still. `rollout_population` runs many sequences from one start, goes on
+with its running arms alone once most have finished, and may stop the whole
+population once enough of it has arrived. All of it is one pure function: jit it, vmap it over arms, goals
 and scenes.
 """
 
@@ -26,6 +27,7 @@ from fabrax.fabrics.limits import LIMITERS, acceleration_box
 from fabrax.fabrics.spec import solve
 from fabrax.rollout.trajectory import Trajectory
 from fabrax.scene import FAR, Scene
+from fabrax.shrink import loop as shrink_loop
 
 Reached = Callable[[Params, jax.Array, jax.Array], jax.Array]
 Distance = Callable[[Params, jax.Array], jax.Array]
@@ -222,6 +224,7 @@ def rollout_population(
     chunk: int = 25,
     patience: tuple[Distance, float, float] | None = None,
     via: Reached | None = None,
+    shrink: int = 4,
 ) -> Trajectory:
     """A population of command sequences (`params_seqs`, leading axes (P, m)) from one start in one scene.
 
@@ -231,6 +234,8 @@ def rollout_population(
     no more (CMA-ES weighs only its best half positively). Arms still running
     are returned as not reached, with their unfinished segments charged the
     whole budget. enough=None runs every arm to its end. patience, via: as `rollout_sequence`.
+    shrink: once at most 1/shrink of the population still runs, those arms go on alone as a
+    smaller batch (`fabrax.shrink`; 1: never), so that finished arms cost no more steps.
     """
     validate.vector("q0", q0, fabric.robot.dof)
     validate.vector("qd0", qd0, fabric.robot.dof)
@@ -239,14 +244,21 @@ def rollout_population(
     init, body, finish, n_chunks = _program(fabric, scene, q0, qd0, reached, m, stop_at_goal=True, **opts)
     enough = jax.tree.leaves(params_seqs)[0].shape[0] + 1 if enough is None else enough
 
-    def cond(s):
-        _, c, _ = s
-        clean = jnp.sum(c.reached & (c.clearance >= 0.0))
-        return (s[0][0] < n_chunks) & ~jnp.all(c.done) & (clean < enough)
+    def running(st):
+        i, c, _ = st[1]
+        return (i < n_chunks) & ~c.done
+
+    def clean(st):
+        c = st[1][1]
+        return (c.reached & (c.clearance >= 0.0)).astype(jnp.int32)
+
+    def advance(st):
+        return st[0], sharding.constrain(jax.vmap(body)(*st))
 
     params_seqs = sharding.constrain(params_seqs)  # the population over the local devices
-    state = jax.lax.while_loop(cond, lambda s: sharding.constrain(jax.vmap(body)(params_seqs, s)), sharding.constrain(jax.vmap(init)(params_seqs)))
-    return jax.vmap(finish)(state)
+    state = (params_seqs, sharding.constrain(jax.vmap(init)(params_seqs)))
+    state = shrink_loop(advance, running, state, shrink, count=clean, limit=enough)
+    return jax.vmap(finish)(state[1])
 
 
 def rollout(fabric: Fabric, params: Params, scene: Scene, q0, qd0, reached: Reached, **kwargs) -> Trajectory:

@@ -69,6 +69,7 @@ import numpy as np
 import optax
 
 from fabrax import sharding
+from fabrax.shrink import loop as shrink_loop
 from fabrax.skills import spline
 
 Speed2 = Callable[..., jax.Array]
@@ -271,12 +272,8 @@ def _adam(metric, args, sb: spline.SplineBasis, cfg: GeodesicConfig):
     return init, step
 
 
-_SMALLEST = 8  # smaller sub-batches save less than their compilation costs
-
-
 def _loop(step, runs: _Run, cfg: GeodesicConfig) -> _Run:
-    """Step every running pair of the batch until none runs; once at most 1/shrink of the current
-    (sub-)batch runs, go on with a sub-batch that size, gathered from the running pairs."""
+    """Step every running pair of the batch until none runs, the batch shrinking to its running pairs (`fabrax.shrink`)."""
 
     def running(r: _Run):
         return (r.i < cfg.iters) & ~r.done
@@ -286,18 +283,7 @@ def _loop(step, runs: _Run, cfg: GeodesicConfig) -> _Run:
         new = jax.vmap(step)(r)
         return jax.tree.map(lambda a, b: jnp.where(on.reshape(on.shape + (1,) * (a.ndim - 1)), a, b), new, r)
 
-    sizes = [runs.i.shape[0]]
-    while cfg.shrink > 1 and -(-sizes[-1] // cfg.shrink) >= _SMALLEST:
-        sizes.append(-(-sizes[-1] // cfg.shrink))
-    for k, size in enumerate(sizes):
-        after = sizes[k + 1] if k + 1 < len(sizes) else 0
-        if k == 0:
-            runs = jax.lax.while_loop(lambda r: jnp.sum(running(r)) > after, advance, runs)
-            continue
-        idx = jnp.argsort(jnp.where(running(runs), 0, 1), stable=True)[:size]  # the running pairs first
-        sub = jax.lax.while_loop(lambda r: jnp.sum(running(r)) > after, advance, jax.tree.map(lambda x: x[idx], runs))
-        runs = jax.tree.map(lambda x, y: x.at[idx].set(y), runs, sub)
-    return runs
+    return shrink_loop(advance, running, runs, cfg.shrink)
 
 
 def minimise(metric, args, sb: spline.SplineBasis, starts, ends, w0, cfg: GeodesicConfig) -> Geodesic:
