@@ -32,7 +32,10 @@ VARIANTS = {
     "eq. 3.9 limiter": ("dissipative", "shrink"),
     "eq. 3.9 limiter and eq. 2.26 energization": ("conservative", "shrink"),
 }
-SETS = {"test set (share 0.5, 0.05-0.5 m)": dict(share=0.5, distance=(0.05, 0.5)), "hard set (share 1, 0-0.3 m)": dict(share=1.0, distance=(0.0, 0.3))}
+SETS = {
+    "test set (share 0.5, 0.05-0.5 m)": dict(share=0.5, distance=(0.05, 0.5)),
+    "hard set (share 1, 0-0.3 m)": dict(share=1.0, distance=(0.0, 0.3)),
+}
 
 
 def main() -> None:
@@ -51,7 +54,8 @@ def main() -> None:
         t0 = time.perf_counter()
         problems = sweeps(robot, args.n, args.seed, default_q=default_q, **kw)
         speeds = [float(np.max(np.abs(p.start_qd) / np.asarray(robot.velocity))) for p in problems]
-        print(f"{set_name}: {len(problems)} sweeps in {time.perf_counter() - t0:.0f} s (fastest joint at {min(speeds):.2f}-{max(speeds):.2f} of its limit)")
+        fastest = f"{min(speeds):.2f}-{max(speeds):.2f}"
+        print(f"{set_name}: {len(problems)} sweeps in {time.perf_counter() - t0:.0f} s (fastest joint at {fastest} of its limit)")
         for name, (energization, limits) in VARIANTS.items():
             fab, params = config.load_fabric(robot, {**config.load("fabric", args.fabric), "energization": energization})
             steps = int(round(args.seconds / 0.01))

@@ -253,7 +253,8 @@ def main() -> None:
         row = {"generation": 0, "candidate": 0, "values": {f"{t}.{k}": v for (t, k), v in start.items()}}
         row.update(sets.evaluate(params_of(sets.fabric, start), start[("posture", "default_weight")]))
         history, gen0 = [row], 0
-        print(f"start: score {row['score']:.3f} mbm {row['mbm_success']:.3f} gen kp {row['generated_keypoints']:.3f} pen {row['sweep_penetration']:.3f}", flush=True)
+        scores = f"mbm {row['mbm_success']:.3f} gen kp {row['generated_keypoints']:.3f} pen {row['sweep_penetration']:.3f}"
+        print(f"start: score {row['score']:.3f} {scores}", flush=True)
     for g in range(gen0 + 1, args.generations + 1):
         key, k_ask, k_tell = jax.random.split(key, 3)
         pop, state = es.ask(k_ask, state, es_params)
@@ -272,7 +273,8 @@ def main() -> None:
             f"{time.perf_counter() - t0:.0f} s",
             flush=True,
         )
-        ckpt.write_bytes(pickle.dumps({"digest": digest, "generation": g, "state": jax.device_get(state), "history": history, "key": np.asarray(key)}))
+        record = {"digest": digest, "generation": g, "state": jax.device_get(state), "history": history, "key": np.asarray(key)}
+        ckpt.write_bytes(pickle.dumps(record))
     best = max(history, key=lambda r: r["score"])
     values = {tuple(k.split(".")): v for k, v in best["values"].items()}
     (out / "best_fabric.yaml").write_text(yaml.safe_dump(apply(base, values), sort_keys=False))

@@ -22,8 +22,8 @@ import jax
 import numpy as np
 
 from fabrax import config
-from fabrax.problems.checker import check_path
 from fabrax.planners.gfcs import GFCOP, GFCSConfig, solve
+from fabrax.problems.checker import check_path
 
 robot = config.load_robot("panda_mbm")
 fabric, params = config.load_fabric(robot, "panda")

@@ -102,7 +102,7 @@ def sweeps(
         i = int(np.argmax(np.linalg.norm(v, axis=1)))
         if worst:  # every joint at its limit, each in the sign that drives sphere i along its motion
             qd = vel * np.sign(jac[:, :, i].T @ v[i])
-            v = (np.einsum("cjs,j->sc", jac, qd))
+            v = np.einsum("cjs,j->sc", jac, qd)
         speed = float(np.linalg.norm(v[i]))
         if speed < 0.3:
             continue
@@ -121,7 +121,8 @@ def sweeps(
         else:  # a 0.3 m box turned 45 deg about an axis across the motion: its edge lies ahead
             half = 0.15
             turn = Rotation.from_rotvec(tilt * np.pi / 4) * Rotation.from_quat(_quat_z_to(u), scalar_first=True)
-            obs = {"type": "cuboid", "center": (x[i] + u * (d0 + half * np.sqrt(2.0))).tolist(), "quat_wxyz": turn.as_quat(scalar_first=True).tolist(), "size": [2 * half] * 3}
+            center = x[i] + u * (d0 + half * np.sqrt(2.0))
+            obs = {"type": "cuboid", "center": center.tolist(), "quat_wxyz": turn.as_quat(scalar_first=True).tolist(), "size": [2 * half] * 3}
         scene = from_dict({"obstacles": [obs]}).pad(**COMMON_CAPACITY)
         env, slf, ok = state_clearances(robot, scene, jnp.asarray(q0[None], jnp.float32))
         if float(env[0]) < 0.02 or float(slf[0]) < 0.0 or not bool(ok[0]):
