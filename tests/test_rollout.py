@@ -163,6 +163,8 @@ def test_population_shrinks_to_its_running_arms(fabric):
         assert np.array_equal(lengths, np.asarray(shrunk.length))
         assert np.allclose(np.asarray(plain.q), np.asarray(shrunk.q), atol=1e-4)
         assert np.array_equal(np.asarray(plain.reached), np.asarray(shrunk.reached))
+    with pytest.raises(ValueError, match="shrink"):
+        rollout_population(fab, seqs, scene, READY, jnp.zeros(7), fab.reached, shrink=0)
 
 
 def test_patience_ends_a_segment_that_makes_no_progress(fabric, panda):

@@ -239,6 +239,8 @@ def rollout_population(
     """
     validate.vector("q0", q0, fabric.robot.dof)
     validate.vector("qd0", qd0, fabric.robot.dof)
+    if shrink < 1:
+        raise ValueError(f"shrink must be at least 1 (1: never shrink), got {shrink}")
     m = jax.tree.leaves(params_seqs)[0].shape[1]
     opts = dict(dt=dt, steps=steps, integrator=integrator, limits=limits, chunk=chunk, patience=patience, via=via)
     init, body, finish, n_chunks = _program(fabric, scene, q0, qd0, reached, m, stop_at_goal=True, **opts)

@@ -115,10 +115,11 @@ class GeodesicConfig:
             if getattr(self, name) < 1:
                 raise ValueError(f"geodesic.{name}: must be at least 1, got {getattr(self, name)}")
         if self.check < 0:
-            raise ValueError(f"geodesic.check: must be 0 (off) or a multiple of the points, got {self.check}")
+            raise ValueError(f"geodesic.check: must be 0 (off) or the factor on the points to check at, got {self.check}")
 
-    def basis(self, points: int | None = None) -> spline.SplineBasis:
-        return spline.basis(self.segments, self.points if points is None else points, self.rule)
+    def basis(self) -> spline.SplineBasis:
+        """The spline family and energy discretisation of this config."""
+        return spline.basis(self.segments, self.points, self.rule)
 
 
 class Geodesic(NamedTuple):
