@@ -153,6 +153,32 @@ def test_self_collision_pairs(panda):
     assert float(gap.min()) > 0
 
 
+def test_closest_link_pairs_is_the_brute_force_minimum(panda):
+    """The dense closest-pair search finds, for every checked pair of links, a sphere pair of that
+    link pair whose gap is the smallest over all of its checked sphere pairs (random states, within
+    the packing's resolution), and the blocks refuse a link pair that lacks some of its sphere pairs."""
+    from fabrax.fabrics.terms import closest_link_pairs
+    from fabrax.robot.robot import link_pair_blocks
+
+    i, j = np.asarray(panda.pair_i), np.asarray(panda.pair_j)
+    link, r = np.asarray(panda.sphere_link), np.asarray(panda.sphere_radius)
+    key = link[i] * 1000 + link[j]
+    groups = [np.nonzero(key == k)[0] for k in np.unique(key)]
+    rng = np.random.default_rng(0)
+    lo, hi = np.asarray(panda.lower), np.asarray(panda.upper)
+    qs = jnp.asarray(rng.uniform(lo, hi, (64, panda.dof)), jnp.float32)
+    xs = jax.vmap(lambda q: sphere_centers(panda, q))(qs)  # (B, S, 3)
+    bi, bj = jax.jit(jax.vmap(lambda x: closest_link_pairs(panda, x.T)))(xs)
+    assert bi.shape == (64, len(groups))
+    for x, ci, cj in zip(np.asarray(xs, np.float64), np.asarray(bi), np.asarray(bj)):
+        gap = lambda a, b: np.linalg.norm(x[a] - x[b], axis=-1) - r[a] - r[b]  # noqa: E731
+        for g, a, b in zip(groups, ci, cj):
+            assert link[a] * 1000 + link[b] == key[g[0]]  # a sphere pair of this link pair
+            assert gap(a, b) <= gap(i[g], j[g]).min() + 1e-4
+    with pytest.raises(ValueError, match="not all pairs"):
+        link_pair_blocks(i[1:], j[1:], link)
+
+
 def test_bad_robot_inputs(tmp_path):
     bad = tmp_path / "bad.urdf"
     bad.write_text("<robot><link name='a'>")

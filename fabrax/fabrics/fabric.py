@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from fabrax.fabrics.linalg import matvec
 from fabrax.fabrics.spec import Spec, energize_alpha, solve
 from fabrax.fabrics.terms import Contribution, Term, TermInputs
 from fabrax.robot.kinematics import PointKinematics, point_kinematics
@@ -101,7 +102,7 @@ class Fabric:
         alpha = energize_alpha(total.M, total.f_geom, total.f_energy, qd)
         if self.energization == "dissipative":
             alpha = jnp.maximum(alpha, 0.0)
-        f = total.f_geom + alpha * (total.M @ qd) + total.f_force + total.damping @ qd
+        f = total.f_geom + alpha * matvec(total.M, qd) + total.f_force + matvec(total.damping, qd)
         return FabricEval(Spec(total.M, f), total.M, alpha, total.energy, total.potential, total)
 
     def accel(self, params: Params, scene: Scene, q: jax.Array, qd: jax.Array) -> jax.Array:

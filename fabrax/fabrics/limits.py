@@ -15,7 +15,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from fabrax.fabrics.linalg import cholesky_solve
+from fabrax.fabrics.linalg import cholesky_solve, matvec
 from fabrax.fabrics.spec import Spec
 from fabrax.robot.robot import Robot
 
@@ -58,7 +58,7 @@ def solve_in_box(spec: Spec, lo: jax.Array, hi: jax.Array, iters: int = 8) -> ja
     eye = jnp.eye(n, dtype=M.dtype)
 
     def cost(a):
-        return 0.5 * a @ (M @ a) + f @ a
+        return jnp.sum(a * (0.5 * matvec(M, a) + f))
 
     a = jnp.clip(-cholesky_solve(M, f), lo, hi)
     at_lo, at_hi = a <= lo, a >= hi
@@ -69,8 +69,8 @@ def solve_in_box(spec: Spec, lo: jax.Array, hi: jax.Array, iters: int = 8) -> ja
         b = jnp.where(at_lo, lo, jnp.where(at_hi, hi, 0.0))
         free = ~bound
         reduced = jnp.where(free[:, None] & free[None, :], M, 0.0) + jnp.where(bound, 1.0, 0.0)[:, None] * eye
-        a = cholesky_solve(reduced, jnp.where(free, -(f + M @ b), b))
-        grad = M @ a + f  # multipliers of the bound joints
+        a = cholesky_solve(reduced, jnp.where(free, -(f + matvec(M, b)), b))
+        grad = matvec(M, a) + f  # multipliers of the bound joints
         new_lo = (at_lo & (grad >= 0.0)) | (free & (a < lo))
         new_hi = (at_hi & (grad <= 0.0)) | (free & (a > hi))
         clipped = jnp.clip(a, lo, hi)

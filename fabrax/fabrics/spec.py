@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from fabrax.fabrics.linalg import cholesky_solve
+from fabrax.fabrics.linalg import cholesky_solve, matvec
 
 
 @struct.dataclass
@@ -44,7 +44,7 @@ def energize_alpha(M: jax.Array, f_geom: jax.Array, f_energy: jax.Array, xd: jax
     xd^T (M h - f_e) is HD3 and xd^T M xd HD2 in xd, so alpha xd -> 0 as xd -> 0;
     `eps` guards the division there.
     """
-    return -jnp.dot(xd, f_geom - f_energy) / (jnp.dot(xd, M @ xd) + eps)
+    return -jnp.sum(xd * (f_geom - f_energy), -1) / (jnp.sum(xd * matvec(M, xd), -1) + eps)
 
 
 def energize(M: jax.Array, f_geom: jax.Array, f_energy: jax.Array, xd: jax.Array, eps: float = 1e-8) -> Spec:
@@ -54,4 +54,4 @@ def energize(M: jax.Array, f_geom: jax.Array, f_energy: jax.Array, xd: jax.Array
     the energy of L_e while tracing the paths of xdd + h = 0.
     """
     alpha = energize_alpha(M, f_geom, f_energy, xd, eps)
-    return Spec(M, f_geom + alpha * (M @ xd))
+    return Spec(M, f_geom + alpha[..., None] * matvec(M, xd))

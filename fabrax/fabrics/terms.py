@@ -26,10 +26,11 @@ from flax import struct
 
 from fabrax.fabrics import energies as E
 from fabrax.fabrics.lagrangian import eom, eom_elementwise, hd2_geometry
+from fabrax.fabrics.linalg import matvec
 from fabrax.robot.kinematics import PointKinematics
 from fabrax.robot.robot import Robot
 from fabrax.scene import FAR, Scene, distance_kinematics
-from fabrax.scene.sdf import argmin_packed, nearest_distance
+from fabrax.scene.sdf import nearest_distance
 from fabrax.soa import dot0, matvec0
 
 
@@ -122,7 +123,7 @@ def joint_attractor(name: str = "joint_attractor", n: int = 7, **overrides) -> T
         psi, dpsi = jax.value_and_grad(E.attractor_potential)(r, p["k_force"], p["alpha_force"])
         b = p["b_goal"] * (1.0 - jnp.tanh(p["alpha_damping"] * E.safe_norm(r)))
         w = p["weight"]
-        return Contribution(M, w * (M @ h2), fe, w * dpsi, w * b * jnp.eye(r.shape[0], dtype=r.dtype), H, w * psi)
+        return Contribution(M, w * matvec(M, h2), fe, w * dpsi, w * b * jnp.eye(r.shape[0], dtype=r.dtype), H, w * psi)
 
     return Term(name, init, apply)
 
@@ -221,14 +222,21 @@ def ee_attractor(name: str = "ee_attractor", frame: str = "panda_hand", offsets=
         h2 = jax.vmap(hd2_geometry(lambda r_: E.attractor_potential(r_, p["k_geometry"], p["alpha_geometry"])))(r, xd)
         psi, dpsi = jax.vmap(jax.value_and_grad(E.attractor_potential), in_axes=(0, None, None))(r, p["k_force"], p["alpha_force"])
         b = p["b_goal"] * (1.0 - jnp.tanh(p["alpha_damping"] * E.safe_norm(r)))  # (K,)
-        mj = jnp.einsum("kij,kjn->kin", M, jac)
-        ma = jnp.einsum("kij,kj->ki", M, jdqd)
+        # contractions as broadcasts and sums over the few (point, axis) rows: XLA fuses them, where
+        # einsums became a small matrix product each
+        mj = sum(M[:, :, c, None] * jac[:, None, c] for c in range(3))  # (K, 3, n): M J per point
+        ma = sum(M[:, :, c] * jdqd[:, c, None] for c in range(3))  # (K, 3)
+        rows = jac.reshape(-1, jac.shape[-1])  # (3K, n)
+
+        def pull(v):  # J^T v over all points, v (K, 3)
+            return jnp.sum(rows * v.reshape(-1, 1), axis=0)
+
         return Contribution(
-            jnp.einsum("kin,kim->nm", jac, mj),
-            jnp.einsum("kin,ki->n", jac, w[:, None] * (jnp.einsum("kij,kj->ki", M, h2) + ma)),
-            jnp.einsum("kin,ki->n", jac, fe + ma),
-            jnp.einsum("kin,ki->n", jac, w[:, None] * dpsi),
-            jnp.einsum("k,kin,kim->nm", w * b, jac, jac),
+            jnp.sum(rows[:, :, None] * mj.reshape(rows.shape)[:, None, :], axis=0),
+            pull(w[:, None] * (sum(M[:, :, c] * h2[:, c, None] for c in range(3)) + ma)),
+            pull(fe + ma),
+            pull(w[:, None] * dpsi),
+            jnp.sum((jnp.repeat(w * b, 3)[:, None] * rows)[:, :, None] * rows[:, None, :], axis=0),
             jnp.sum(H),
             jnp.sum(w * psi),
         )
@@ -387,12 +395,36 @@ def obstacle_repulsion(name: str = "obstacles", resolution: str = "scene", **ove
     return Term(name, init, apply_scene if resolution == "scene" else apply_sphere, _spheres)
 
 
+def closest_link_pairs(robot: Robot, x: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """The closest sphere pair (i, j) of every checked pair of links, for sphere centres x (3, S).
+
+    Dense and gather-free over the pairs: the gaps of all (first-link sphere, second-link sphere)
+    pairs (R, C), their minimum over each first link's rows with the row packed into the low
+    bits of the gap's float bits, then over each link pair's columns with the column packed
+    likewise (`scene.sdf.argmin_packed`'s trick, twice).
+    """
+    rows, cols = robot.pair_rows, robot.pair_cols
+    r = robot.sphere_radius
+    rel = x[:, rows][:, :, None] - x[:, cols][:, None, :]
+    gap = jnp.sqrt(dot0(rel, rel)) - r[rows][:, None] - r[cols][None, :]  # (R, C)
+    bits = max(1, int(rows.shape[0] - 1).bit_length())
+    raw = jax.lax.bitcast_convert_type(jnp.maximum(gap + 2.0, 1e-30).astype(jnp.float32), jnp.int32)  # positive floats order as ints
+    key = (raw & ~((1 << bits) - 1)) | jnp.arange(rows.shape[0], dtype=jnp.int32)[:, None]
+    top = jnp.iinfo(jnp.int32).max
+    per_link = jnp.min(jnp.where(robot.row_links[:, :, None], key[None], top), axis=1)  # (A, C)
+    cand = jnp.where(robot.link_pair_cols, per_link[robot.link_pair_row], top)  # (LP, C)
+    cbits = max(1, int(cols.shape[0] - 1).bit_length())
+    col = jnp.min((cand & ~((1 << cbits) - 1)) | jnp.arange(cols.shape[0], dtype=jnp.int32), axis=1) & ((1 << cbits) - 1)
+    row = jnp.take_along_axis(cand, col[:, None], axis=1)[:, 0] & ((1 << bits) - 1)
+    return rows[row], cols[col]
+
+
 def self_collision(name: str = "self_collision", resolution: str = "link", **overrides) -> Term:
     """Repulsion between the robot's own links (thesis §3.3.3), x = |p_i - p_j| - r_i - r_j.
 
     resolution="link": one distance per pair of links, the thesis' link-to-link
-    distance, measured by their closest checked sphere pair (found chunk by
-    chunk); "sphere": every checked sphere pair. Each distance
+    distance, measured by their closest checked sphere pair
+    (`closest_link_pairs`); "sphere": every checked sphere pair. Each distance
     pulls back through both spheres: u = J_i^T n - J_j^T n, M = sum m u u^T.
     """
     _check_resolution(resolution, name)
@@ -402,15 +434,7 @@ def self_collision(name: str = "self_collision", resolution: str = "link", **ove
         kin, robot = inp.points, inp.robot
         i, j = robot.pair_i, robot.pair_j
         if resolution == "link":
-            rel = kin.x[:, i] - kin.x[:, j]
-            gap = jnp.sqrt(dot0(rel, rel)) - robot.sphere_radius[i] - robot.sphere_radius[j]
-            # closest pair of each chunk, then closest chunk of each pair of links
-            grouped = jnp.where(robot.pair_groups_mask, gap[robot.pair_groups], FAR)
-            slot = argmin_packed(grouped)
-            best = jnp.take_along_axis(robot.pair_groups, slot[:, None], -1)[:, 0]
-            chunk_gap = jnp.where(robot.link_pair_groups_mask, jnp.take_along_axis(grouped, slot[:, None], -1)[:, 0][robot.link_pair_groups], FAR)
-            best = best[jnp.take_along_axis(robot.link_pair_groups, argmin_packed(chunk_gap)[:, None], -1)[:, 0]]
-            i, j = i[best], j[best]
+            i, j = closest_link_pairs(robot, kin.x)
         rel, reld = kin.x[:, i] - kin.x[:, j], kin.xd[:, i] - kin.xd[:, j]  # (3, P)
         dist = jnp.sqrt(dot0(rel, rel) + 1e-18)
         nrm = rel / dist
