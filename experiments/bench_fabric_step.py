@@ -10,6 +10,10 @@ which keeps each kernel's working set in cache. Writes JSON and a markdown table
 
     python experiments/bench_fabric_step.py --out bench_out/fabric_step
     FABRAX_CPU_DEVICES=2 python experiments/bench_fabric_step.py --out bench_out/fabric_step_2dev
+    taskset -c 0 python experiments/bench_fabric_step.py --batches 1 --out bench_out/fabric_step_1core
+
+On one core XLA runs the step's kernels on one thread: a single arm steps faster there than with
+two cores, where its small kernels are handed between threads (docs/results.md).
 """
 
 from __future__ import annotations
@@ -105,6 +109,7 @@ def main() -> None:
         "dt": dt,
         "machine": {
             "cpus": os.cpu_count(),
+            "cores_used": len(os.sched_getaffinity(0)),  # fewer under taskset
             "processor": platform.processor() or platform.machine(),
             "jax": jax.__version__,
             "devices": str(jax.devices()),
@@ -116,7 +121,7 @@ def main() -> None:
     (out / "results.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))
     lines = [
         f"Panda fabric step: {meta['spheres']} spheres x {meta['primitives']} cuboids, "
-        f"{meta['self_pairs']} self pairs, {meta['machine']['cpus']} CPUs",
+        f"{meta['self_pairs']} self pairs, {meta['machine']['cores_used']} of {meta['machine']['cpus']} CPUs",
         "",
         "| arms | devices | arms per sub-batch | arm-steps/s | us per step | us per arm-step | compile s |",
         "|---:|---:|---:|---:|---:|---:|---:|",

@@ -89,7 +89,8 @@ class Fabric:
         if sets:
             frame = jnp.concatenate([f for f, _ in sets.values()])
             local = jnp.concatenate([loc for _, loc in sets.values()]).astype(q.dtype)
-            allk = point_kinematics(self.robot, q, qd, frame, local)
+            with jax.named_scope("kinematics"):  # scopes name the kernels in profiles
+                allk = point_kinematics(self.robot, q, qd, frame, local)
             start = 0
             for key, (f, _) in sets.items():
                 sl = slice(start, start + f.shape[0])
@@ -98,7 +99,8 @@ class Fabric:
         total = Contribution.zeros(q.shape[0], q.dtype)
         for t in self.terms:
             pts = kin[t.points(self.robot)[0]] if t.points is not None else None
-            total = total + t.apply(params[t.name], TermInputs(q, qd, pts, scene, self.robot))
+            with jax.named_scope(t.name):
+                total = total + t.apply(params[t.name], TermInputs(q, qd, pts, scene, self.robot))
         alpha = energize_alpha(total.M, total.f_geom, total.f_energy, qd)
         if self.energization == "dissipative":
             alpha = jnp.maximum(alpha, 0.0)

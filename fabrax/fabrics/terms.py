@@ -404,6 +404,8 @@ def closest_link_pairs(robot: Robot, x: jax.Array) -> tuple[jax.Array, jax.Array
     likewise (`scene.sdf.argmin_packed`'s trick, twice).
     """
     rows, cols = robot.pair_rows, robot.pair_cols
+    if rows.shape[0] == 0:
+        return rows, cols
     r = robot.sphere_radius
     rel = x[:, rows][:, :, None] - x[:, cols][:, None, :]
     gap = jnp.sqrt(dot0(rel, rel)) - r[rows][:, None] - r[cols][None, :]  # (R, C)

@@ -42,8 +42,9 @@ def accel(fabric: Fabric, params: Params, scene: Scene, q, qd, dt: float, limits
     if limits is False:
         return solve(ev.spec), ev.terms.clearance
     limiter = LIMITERS["metric" if limits is True else limits]
-    lo, hi = acceleration_box(fabric.robot, q, qd, dt)
-    return limiter(ev.spec, lo, hi), ev.terms.clearance
+    with jax.named_scope("limiter"):
+        lo, hi = acceleration_box(fabric.robot, q, qd, dt)
+        return limiter(ev.spec, lo, hi), ev.terms.clearance
 
 
 def integrate(fabric: Fabric, params: Params, scene: Scene, q, qd, dt: float, integrator: str = "second_order", limits: bool | str = True):
