@@ -30,7 +30,7 @@ from fabrax.fabrics.linalg import matvec
 from fabrax.robot.kinematics import PointKinematics
 from fabrax.robot.robot import Robot
 from fabrax.scene import FAR, Scene, distance_kinematics
-from fabrax.scene.sdf import nearest_distance
+from fabrax.scene.sdf import argmin_packed, nearest_distance
 from fabrax.soa import dot0, matvec0
 
 
@@ -396,29 +396,25 @@ def obstacle_repulsion(name: str = "obstacles", resolution: str = "scene", **ove
 
 
 def closest_link_pairs(robot: Robot, x: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """The closest sphere pair (i, j) of every checked pair of links, for sphere centres x (3, S).
+    """The closest checked sphere pair (i, j) of every checked pair of links, for sphere centres x (3, S).
 
-    Dense and gather-free over the pairs: the gaps of all (first-link sphere, second-link sphere)
-    pairs (R, C), their minimum over each first link's rows with the row packed into the low
-    bits of the gap's float bits, then over each link pair's columns with the column packed
-    likewise (`scene.sdf.argmin_packed`'s trick, twice).
+    The checked pairs' gaps, grouped into chunks of at most 16 pairs of one link pair
+    (`robot.pair_groups`): the closest pair of each chunk, then the closest chunk of each link pair,
+    both by packed argmins (`scene.sdf.argmin_packed`). The work grows with the checked pairs alone:
+    a dense search over all spheres of both links was 3x slower with the MotionBenchMaker sphere set,
+    where XLA fused its minima into a gather that recomputed them per link pair (docs/results.md).
     """
-    rows, cols = robot.pair_rows, robot.pair_cols
-    if rows.shape[0] == 0:
-        return rows, cols
-    r = robot.sphere_radius
-    rel = x[:, rows][:, :, None] - x[:, cols][:, None, :]
-    gap = jnp.sqrt(dot0(rel, rel)) - r[rows][:, None] - r[cols][None, :]  # (R, C)
-    bits = max(1, int(rows.shape[0] - 1).bit_length())
-    raw = jax.lax.bitcast_convert_type(jnp.maximum(gap + 2.0, 1e-30).astype(jnp.float32), jnp.int32)  # positive floats order as ints
-    key = (raw & ~((1 << bits) - 1)) | jnp.arange(rows.shape[0], dtype=jnp.int32)[:, None]
-    top = jnp.iinfo(jnp.int32).max
-    per_link = jnp.min(jnp.where(robot.row_links[:, :, None], key[None], top), axis=1)  # (A, C)
-    cand = jnp.where(robot.link_pair_cols, per_link[robot.link_pair_row], top)  # (LP, C)
-    cbits = max(1, int(cols.shape[0] - 1).bit_length())
-    col = jnp.min((cand & ~((1 << cbits) - 1)) | jnp.arange(cols.shape[0], dtype=jnp.int32), axis=1) & ((1 << cbits) - 1)
-    row = jnp.take_along_axis(cand, col[:, None], axis=1)[:, 0] & ((1 << bits) - 1)
-    return rows[row], cols[col]
+    i, j = robot.pair_i, robot.pair_j
+    if i.shape[0] == 0:
+        return i, j
+    rel = x[:, i] - x[:, j]
+    gap = jnp.sqrt(dot0(rel, rel)) - robot.sphere_radius[i] - robot.sphere_radius[j]
+    grouped = jnp.where(robot.pair_groups_mask, gap[robot.pair_groups], FAR)
+    slot = argmin_packed(grouped)
+    best = jnp.take_along_axis(robot.pair_groups, slot[:, None], -1)[:, 0]
+    chunk_gap = jnp.where(robot.link_pair_groups_mask, jnp.take_along_axis(grouped, slot[:, None], -1)[:, 0][robot.link_pair_groups], FAR)
+    best = best[jnp.take_along_axis(robot.link_pair_groups, argmin_packed(chunk_gap)[:, None], -1)[:, 0]]
+    return i[best], j[best]
 
 
 def self_collision(name: str = "self_collision", resolution: str = "link", **overrides) -> Term:

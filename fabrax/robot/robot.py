@@ -49,12 +49,10 @@ class Robot:
     sphere_link: jax.Array  # (S,) index into sphere_link_names
     pair_i: jax.Array  # (P,) self-collision sphere pairs
     pair_j: jax.Array
-    # the checked pairs as link pairs (every pair is the full product of two links' spheres):
-    pair_rows: jax.Array  # (R,) spheres of the links that come first in a checked link pair
-    pair_cols: jax.Array  # (C,) spheres of the links that come second
-    row_links: jax.Array  # (A, R) bool: row r is a sphere of first link a
-    link_pair_row: jax.Array  # (LP,) first link of each checked link pair, index into row_links
-    link_pair_cols: jax.Array  # (LP, C) bool: column c is a sphere of the pair's second link
+    pair_groups: jax.Array  # (G, Q) indices into pair_i/pair_j: pairs of one pair of links, at most Q per row, padded
+    pair_groups_mask: jax.Array  # (G, Q)
+    link_pair_groups: jax.Array  # (LP, C) rows of pair_groups that belong to one pair of links, padded
+    link_pair_groups_mask: jax.Array  # (LP, C)
     keypoint_frame: int = struct.field(pytree_node=False, default=0)  # joint frame that carries the keypoints
     keypoint_local: jax.Array | None = None  # (8, 3) corners of the end effector's bounding box in that frame
     effort: jax.Array | None = None  # (n,) joint torque limits from the URDF (inf where none)
@@ -279,11 +277,10 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
         sphere_link=jnp.asarray(s_link, jnp.int32),
         pair_i=jnp.zeros((0,), jnp.int32),
         pair_j=jnp.zeros((0,), jnp.int32),
-        pair_rows=jnp.zeros((0,), jnp.int32),
-        pair_cols=jnp.zeros((0,), jnp.int32),
-        row_links=jnp.zeros((0, 0), bool),
-        link_pair_row=jnp.zeros((0,), jnp.int32),
-        link_pair_cols=jnp.zeros((0, 0), bool),
+        pair_groups=jnp.zeros((0, 0), jnp.int32),
+        pair_groups_mask=jnp.zeros((0, 0), bool),
+        link_pair_groups=jnp.zeros((0, 0), jnp.int32),
+        link_pair_groups_mask=jnp.zeros((0, 0), bool),
     )
     sc = dict(cfg.get("self_collision") or {})
     reference = np.asarray(sc.get("reference_q", cfg.get("default_q")) or np.zeros((0, n)), dtype=np.float64).reshape(-1, n)
@@ -300,7 +297,17 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
         float(sc.get("near_fraction", 0.5)),
     )
     s_link = np.asarray(s_link)
-    rows, cols, row_links, pair_row, pair_cols = link_pair_blocks(pi, pj, s_link)
+    key = s_link[pi] * len(link_names) + s_link[pj]
+    width = int(sc.get("group_width", 16))
+    chunks, owner = [], []
+    for k in np.unique(key):
+        members = np.nonzero(key == k)[0]
+        for c in range(0, len(members), width):
+            chunks.append(members[c : c + width])
+            owner.append(k)
+    groups, group_mask = _groups(chunks)
+    owner = np.asarray(owner)
+    link_groups, link_group_mask = _groups([np.nonzero(owner == k)[0] for k in np.unique(owner)])
     kp_frame, kp_local = _keypoint_box(cfg.get("keypoints"), frame_names, frame_parent, frame_offset, link_names, s_link, s_frame, s_local, s_radius)
     mass, com, inertia = frame_inertials(tree)
     return robot.replace(
@@ -312,11 +319,10 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
         keypoint_local=f32(kp_local),
         pair_i=jnp.asarray(pi),
         pair_j=jnp.asarray(pj),
-        pair_rows=jnp.asarray(rows),
-        pair_cols=jnp.asarray(cols),
-        row_links=jnp.asarray(row_links),
-        link_pair_row=jnp.asarray(pair_row),
-        link_pair_cols=jnp.asarray(pair_cols),
+        pair_groups=jnp.asarray(groups),
+        pair_groups_mask=jnp.asarray(group_mask),
+        link_pair_groups=jnp.asarray(link_groups),
+        link_pair_groups_mask=jnp.asarray(link_group_mask),
     )
 
 
@@ -350,24 +356,14 @@ def _keypoint_box(spec, frame_names, frame_parent, frame_offset, link_names, s_l
     return carrier, corners @ offset[:3, :3].T + offset[:3, 3]
 
 
-def link_pair_blocks(pair_i: np.ndarray, pair_j: np.ndarray, sphere_link: np.ndarray):
-    """The checked sphere pairs as blocks of link pairs, for a dense closest-pair search (`self_collision`).
-
-    Returns rows (spheres of the links that come first in a pair), cols (of those that come
-    second), row_links (A, R) and, per checked link pair, its first link (index into row_links)
-    and its second link's columns (LP, C). Every checked link pair must hold all pairs of its two
-    links' spheres (`self_collision_pairs` keeps or drops a link pair as a whole).
-    """
-    li, lj = sphere_link[pair_i], sphere_link[pair_j]
-    pairs = sorted(set(zip(li.tolist(), lj.tolist())))
-    for a, b in pairs:
-        full = np.count_nonzero(sphere_link == a) * np.count_nonzero(sphere_link == b)
-        if np.count_nonzero((li == a) & (lj == b)) != full:
-            raise ValueError(f"self-collision pairs of links {a} and {b} are not all pairs of their spheres")
-    first = sorted({a for a, _ in pairs})
-    rows = np.nonzero(np.isin(sphere_link, first))[0].astype(np.int32)
-    cols = np.nonzero(np.isin(sphere_link, sorted({b for _, b in pairs})))[0].astype(np.int32)
-    row_links = sphere_link[rows][None, :] == np.asarray(first, np.int64).reshape(-1, 1)
-    pair_row = np.asarray([first.index(a) for a, _ in pairs], np.int32).reshape(-1)
-    pair_cols = sphere_link[cols][None, :] == np.asarray([b for _, b in pairs], np.int64).reshape(-1, 1)
-    return rows, cols, row_links, pair_row, pair_cols
+def _groups(members: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Ragged index lists as a padded (G, max) array (padding repeats the first member) and its mask."""
+    members = [m for m in members if len(m)]
+    width = max((len(m) for m in members), default=0)
+    out = np.zeros((len(members), width), np.int32)
+    mask = np.zeros((len(members), width), bool)
+    for g, m in enumerate(members):
+        out[g] = m[0]
+        out[g, : len(m)] = m
+        mask[g, : len(m)] = True
+    return out, mask
