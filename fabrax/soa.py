@@ -30,6 +30,12 @@ def cross0(a: jax.Array, b: jax.Array) -> jax.Array:
     return jnp.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
+def matvec(m: jax.Array, v: jax.Array) -> jax.Array:
+    """m v for small matrices m (..., n, k) and v (..., k), axes last, as a multiply and a sum that
+    XLA fuses with its neighbours (a `@` on a 7x7 or 3x3 is a matrix-product kernel call of its own)."""
+    return jnp.sum(m * v[..., None, :], axis=-1)
+
+
 def matvec0(m: jax.Array, v: jax.Array) -> jax.Array:
     """(m v)_i = sum_j m[i, j] v[j] for m (d, e, ...) and v (e, ...)."""
     return jnp.stack([dot0(m[i], v) for i in range(m.shape[0])])

@@ -4,6 +4,7 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
+import jaxlie
 import numpy as np
 import pytest
 
@@ -13,6 +14,7 @@ from fabrax.fabrics import energies as E
 from fabrax.fabrics import energize, eom, pullback, unforced
 from fabrax.fabrics.lagrangian import eom_elementwise, hd2_geometry
 from fabrax.fabrics.spec import Spec
+from fabrax.fabrics.terms import TermInputs
 from fabrax.robot import point_kinematics
 from fabrax.rollout import integrate
 
@@ -246,6 +248,39 @@ def test_resolutions_agree_where_they_coincide(fabric, panda):
         assert jnp.allclose(getattr(c1, f), getattr(c2, f), rtol=1e-4, atol=1e-5), f
     with pytest.raises(ValueError, match="resolution"):
         obstacle_repulsion(resolution="link")
+
+
+def test_ee_attractor_is_the_sum_of_its_points_pullbacks(fabric, panda):
+    """The end-effector attractor's contribution equals the sum over its points of each point's
+    spec pulled back by `spec.pullback` (eq. 2.6) and J^T of its forcing gradient and damping,
+    with unequal point weights."""
+    fab, params = fabric
+    term = fab.term("ee")
+    p = fab.with_pose_goal(params, jnp.asarray([0.45, 0.15, 0.5]), jnp.asarray([0.0, 1.0, 0.0, 0.0]))["ee"]
+    p = {**p, "point_weights": jnp.asarray([1.0, 0.5, 0.2])}
+    _, frame, local = term.points(panda)
+    q, qd = jnp.asarray(READY), jnp.asarray(V0, jnp.float32)
+    kin = point_kinematics(panda, q, qd, frame, local)
+    got = term.apply(p, TermInputs(q, qd, kin, None, panda))
+    offsets = (local - panda.frame_offset_t[panda.frame_index("panda_hand")]) @ panda.frame_offset_r[panda.frame_index("panda_hand")]
+    quat = p["target_quat"] / jnp.linalg.norm(p["target_quat"])
+    target = jaxlie.SO3(quat).apply(offsets) + p["target_pos"]
+    w = p["weight"] * p["point_weights"]
+    want = {k: 0.0 for k in ("M", "f_geom", "f_energy", "f_force", "damping")}
+    for k in range(3):
+        J, jdqd, r, rd = kin.jac[:, :, k], kin.jdqd[:, k], kin.x[:, k] - target[k], kin.xd[:, k]
+        Mk, fe, _ = eom(lambda r_, rd_: E.attractor_energy(r_, rd_, p["m_hi"], p["m_lo"], p["alpha_mass"]), r, rd)
+        h2 = hd2_geometry(lambda r_: E.attractor_potential(r_, p["k_geometry"], p["alpha_geometry"]))(r, rd)
+        dpsi = jax.grad(E.attractor_potential)(r, p["k_force"], p["alpha_force"])
+        b = p["b_goal"] * (1.0 - jnp.tanh(p["alpha_damping"] * E.safe_norm(r)))
+        geom, en = pullback(Spec(Mk, Mk @ h2), J, jdqd), pullback(Spec(Mk, fe), J, jdqd)
+        want["M"] += geom.M
+        want["f_geom"] += w[k] * geom.f
+        want["f_energy"] += en.f
+        want["f_force"] += w[k] * J.T @ dpsi
+        want["damping"] += w[k] * b * J.T @ J
+    for f, v in want.items():
+        np.testing.assert_allclose(np.asarray(getattr(got, f)), np.asarray(v), rtol=1e-4, atol=1e-5, err_msg=f)
 
 
 def test_box_solve_is_the_metric_projection(fabric):

@@ -27,12 +27,12 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from fabrax.fabrics.linalg import matvec
 from fabrax.fabrics.spec import Spec, energize_alpha, solve
 from fabrax.fabrics.terms import Contribution, Term, TermInputs
 from fabrax.robot.kinematics import PointKinematics, point_kinematics
 from fabrax.robot.robot import Robot
 from fabrax.scene import Scene
+from fabrax.soa import matvec
 
 Params = dict[str, Any]
 FORCING_KEYS = ("k_force", "b", "b_goal", "k_speed", "k_drag")  # parameters that inject or drain energy

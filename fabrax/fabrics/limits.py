@@ -15,9 +15,10 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from fabrax.fabrics.linalg import cholesky_solve, matvec
+from fabrax.fabrics.linalg import cholesky_solve
 from fabrax.fabrics.spec import Spec
 from fabrax.robot.robot import Robot
+from fabrax.soa import matvec
 
 
 def max_acceleration(robot: Robot, dt: float) -> jax.Array:

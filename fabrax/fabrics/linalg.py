@@ -13,12 +13,6 @@ import jax.numpy as jnp
 UNROLL_MAX = 16  # larger systems go to LAPACK
 
 
-def matvec(M: jax.Array, v: jax.Array) -> jax.Array:
-    """M v for small M (..., n, m), v (..., m), as a multiply and a sum that XLA fuses with its
-    neighbours (a `@` on a 7x7 matrix is a matrix-product kernel call of its own)."""
-    return jnp.sum(M * v[..., None, :], axis=-1)
-
-
 def cholesky_solve(M: jax.Array, b: jax.Array) -> jax.Array:
     """x with M x = b for symmetric positive definite M (..., n, n), b (..., n)."""
     n = M.shape[-1]

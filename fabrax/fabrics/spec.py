@@ -10,7 +10,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from fabrax.fabrics.linalg import cholesky_solve, matvec
+from fabrax.fabrics.linalg import cholesky_solve
+from fabrax.soa import matvec
 
 
 @struct.dataclass

@@ -26,12 +26,11 @@ from flax import struct
 
 from fabrax.fabrics import energies as E
 from fabrax.fabrics.lagrangian import eom, eom_elementwise, hd2_geometry
-from fabrax.fabrics.linalg import matvec
 from fabrax.robot.kinematics import PointKinematics
 from fabrax.robot.robot import Robot
 from fabrax.scene import FAR, Scene, distance_kinematics
 from fabrax.scene.sdf import argmin_packed, nearest_distance
-from fabrax.soa import dot0, matvec0
+from fabrax.soa import dot0, matvec, matvec0
 
 
 @struct.dataclass

@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 
-from fabrax.soa import cross0, dot0
+from fabrax.soa import cross0, dot0, matvec
 
 
 class PointKinematics(NamedTuple):
@@ -41,10 +41,6 @@ def _mm(a, b):
     return (a[..., :, :, None] * b[..., None, :, :]).sum(-2)
 
 
-def _mv(a, v):
-    return (a * v[..., None, :]).sum(-1)
-
-
 def frame_transforms(robot, q):
     """World rotation (n+1, 3, 3) and translation (n+1, 3) of the base and every joint frame."""
     k = _skew(robot.joint_axis)
@@ -54,19 +50,19 @@ def frame_transforms(robot, q):
     motion_r = jnp.where(revolute, eye + s * k + (1.0 - c) * _mm(k, k), eye)
     motion_t = jnp.where(revolute[..., 0], 0.0, robot.joint_axis * q[:, None])
     local_r = _mm(robot.joint_origin_r, motion_r)
-    local_t = _mv(robot.joint_origin_r, motion_t) + robot.joint_origin_t
+    local_t = matvec(robot.joint_origin_r, motion_t) + robot.joint_origin_t
     rs, ts = [eye], [jnp.zeros(3, q.dtype)]
     for i, p in enumerate(robot.joint_parent):  # static tree walk, unrolled at trace time
         rp, tp = rs[p + 1], ts[p + 1]
         rs.append(_mm(rp, local_r[i]))
-        ts.append(_mv(rp, local_t[i]) + tp)
+        ts.append(matvec(rp, local_t[i]) + tp)
     return jnp.stack(rs), jnp.stack(ts)
 
 
 def points(robot, q, frame, local):
     """World positions (N, 3) of points given by frame index (N,) and local position (N, 3)."""
     r, t = frame_transforms(robot, q)
-    return _mv(r[frame], local) + t[frame]
+    return matvec(r[frame], local) + t[frame]
 
 
 def point_kinematics(robot, q, qd, frame, local) -> PointKinematics:
@@ -82,7 +78,7 @@ def point_kinematics(robot, q, qd, frame, local) -> PointKinematics:
     """
     r, t = frame_transforms(robot, q)
     rev = jnp.asarray(robot.joint_revolute)  # (n,)
-    z = _mv(r[1:], robot.joint_axis).T  # (3, n) world joint axes
+    z = matvec(r[1:], robot.joint_axis).T  # (3, n) world joint axes
     o = t[1:].T  # (3, n) joint origins
     zq = z * qd  # (3, n)
     anc = robot.ancestors[1:].T  # (n_i, n_j): joint i moves joint frame j
@@ -109,7 +105,7 @@ def link_poses(robot, q) -> jaxlie.SE3:
     r, t = frame_transforms(robot, q)
     f = robot.link_frame
     rot = _mm(r[f], robot.link_offset_r)
-    trans = _mv(r[f], robot.link_offset_t) + t[f]
+    trans = matvec(r[f], robot.link_offset_t) + t[f]
     return jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(rot), trans)
 
 
