@@ -153,12 +153,17 @@ def test_self_collision_pairs(panda):
     assert float(gap.min()) > 0
 
 
-def test_closest_link_pairs_is_the_brute_force_minimum(panda):
+@pytest.mark.parametrize("robot_name", ["panda", "panda_mbm"])
+def test_closest_link_pairs_is_the_brute_force_minimum(robot_name, panda, request):
     """The closest-pair search finds, for every checked pair of links, a checked sphere pair of that
     link pair whose gap is the smallest over all of its checked sphere pairs (random states, within
-    the packing's resolution)."""
+    the packing's resolution). panda_mbm (the MotionBenchMaker spheres, up to 15 chunks per link
+    pair) reads its spheres from FABRAX_DATA."""
     from fabrax.fabrics.terms import closest_link_pairs
 
+    if robot_name == "panda_mbm":
+        request.getfixturevalue("shared_data")  # skips without the data
+        panda = config.load_robot("panda_mbm")
     i, j = np.asarray(panda.pair_i), np.asarray(panda.pair_j)
     link, r = np.asarray(panda.sphere_link), np.asarray(panda.sphere_radius)
     key = link[i] * 1000 + link[j]
