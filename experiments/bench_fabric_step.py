@@ -89,7 +89,8 @@ def main() -> None:
         compiled = fn.lower(q0, qd0).compile()
         compile_s = time.perf_counter() - t0
         cost = compiled.cost_analysis()
-        flops = (cost[0] if isinstance(cost, list) else cost).get("flops", float("nan")) / b  # a loop's body counts once: one step
+        # one device's program, whose loops' bodies count once: one step of one sub-batch
+        flops = (cost[0] if isinstance(cost, list) else cost).get("flops", float("nan")) / chunk
         jax.block_until_ready(compiled(q0, qd0))
         best, best_cpu = np.inf, np.inf
         for _ in range(args.repeats):
