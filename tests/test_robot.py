@@ -163,16 +163,16 @@ def test_closest_link_pairs_is_the_brute_force_minimum(robot_name, panda, reques
 
     if robot_name == "panda_mbm":
         request.getfixturevalue("shared_data")  # skips without the data
-        panda = config.load_robot("panda_mbm")
-    i, j = np.asarray(panda.pair_i), np.asarray(panda.pair_j)
-    link, r = np.asarray(panda.sphere_link), np.asarray(panda.sphere_radius)
+    robot = panda if robot_name == "panda" else config.load_robot("panda_mbm")
+    i, j = np.asarray(robot.pair_i), np.asarray(robot.pair_j)
+    link, r = np.asarray(robot.sphere_link), np.asarray(robot.sphere_radius)
     key = link[i] * 1000 + link[j]
     groups = [np.nonzero(key == k)[0] for k in np.unique(key)]
     rng = np.random.default_rng(0)
-    lo, hi = np.asarray(panda.lower), np.asarray(panda.upper)
-    qs = jnp.asarray(rng.uniform(lo, hi, (64, panda.dof)), jnp.float32)
-    xs = jax.vmap(lambda q: sphere_centers(panda, q))(qs)  # (B, S, 3)
-    bi, bj = jax.jit(jax.vmap(lambda x: closest_link_pairs(panda, x.T)))(xs)
+    lo, hi = np.asarray(robot.lower), np.asarray(robot.upper)
+    qs = jnp.asarray(rng.uniform(lo, hi, (64, robot.dof)), jnp.float32)
+    xs = jax.vmap(lambda q: sphere_centers(robot, q))(qs)  # (B, S, 3)
+    bi, bj = jax.jit(jax.vmap(lambda x: closest_link_pairs(robot, x.T)))(xs)
     assert bi.shape == (64, len(groups))
     for x, ci, cj in zip(np.asarray(xs, np.float64), np.asarray(bi), np.asarray(bj)):
         gap = lambda a, b: np.linalg.norm(x[a] - x[b], axis=-1) - r[a] - r[b]  # noqa: E731
