@@ -138,6 +138,10 @@ def test_population_matches_vmap_and_stops_when_enough_arrived(fabric):
     pop = jax.jit(lambda s: rollout_population(fab, s, scene, READY, jnp.zeros(7), fab.reached, **kw))(seqs)
     assert np.array_equal(np.asarray(one.length), np.asarray(pop.length))
     assert np.allclose(np.asarray(one.q), np.asarray(pop.q), atol=1e-5)
+    # only the goal terms per arm and segment, the rest shared: the same rollouts
+    part = jax.jit(lambda s: rollout_population(fab, fab.aimed(s), scene, READY, jnp.zeros(7), fab.reached, shared=params, **kw))(seqs)
+    assert set(fab.aimed(seqs)) < set(params) and np.array_equal(np.asarray(one.length), np.asarray(part.length))
+    assert np.allclose(np.asarray(one.q), np.asarray(part.q), atol=1e-4)
     first = int(np.argmin(np.where(np.asarray(one.reached), np.asarray(one.length), 10**6)))
     early = jax.jit(lambda s: rollout_population(fab, s, scene, READY, jnp.zeros(7), fab.reached, enough=1, **kw))(seqs)
     assert bool(early.reached[first]) and int(early.reached.sum()) < int(one.reached.sum())

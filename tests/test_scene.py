@@ -103,18 +103,38 @@ def test_capacity_overflow_raises():
         sc.from_dict({"obstacles": SCENE["obstacles"] * 2}, capacity={"cuboids": 1})
 
 
-def test_argmin_packed_and_nearest_distance():
+@pytest.mark.parametrize("boxes", [1, 11])
+def test_argmin_packed_and_nearest_distance(boxes):
+    """The nearest primitive and its derivatives equal the min over every pair's; slot counts that are
+    not a multiple of `sdf.LANES` (4 cuboid slots with 1 or 11 in use, 1 cylinder, 13 cloud points)
+    are padded inside nearest_distance and must not change the answer."""
     rng = np.random.default_rng(4)
     v = jnp.asarray(rng.uniform(-0.5, 5.0, (40, 23)), jnp.float32)
     assert np.array_equal(np.asarray(sc.sdf.argmin_packed(v)), np.asarray(jnp.argmin(v, -1)))
-    scene = sc.from_dict({**SCENE, "points": [[0.9, 0.9, 0.9]]}, capacity={"cuboids": 4})
+    quats = rng.normal(size=(boxes - 1, 4))
+    quats /= np.linalg.norm(quats, axis=1, keepdims=True)
+    extra = [
+        {"type": "cuboid", "center": rng.uniform(-0.5, 0.8, 3).tolist(), "size": rng.uniform(0.05, 0.3, 3).tolist(), "quat_wxyz": q.tolist()}
+        for q in quats
+    ]
+    cloud = rng.uniform(-0.5, 1.0, (13, 3)).tolist()
+    scene = sc.from_dict({"obstacles": SCENE["obstacles"] + extra, "points": cloud}, capacity={"cuboids": max(4, boxes)})
     pts = jnp.asarray(rng.uniform(-0.6, 1.0, (3, 64)), jnp.float32)
     vel = jnp.asarray(rng.normal(size=(3, 64)), jnp.float32)
     near = sc.sdf.nearest_distance(scene, pts, vel)
     every = sc.distance_kinematics(scene, pts, vel)
     k = jnp.argmin(every.d, 0)
     pick = lambda a: jnp.take_along_axis(a, k[None], 0)[0]  # noqa: E731
+    assert len(set(np.asarray(k).tolist())) > 3  # several slots are nearest somewhere
     assert np.allclose(near.d, every.d.min(0), atol=1e-6)
     assert np.array_equal(np.asarray(near.slot), np.asarray(k))
     assert np.allclose(near.n, jnp.stack([pick(every.n[c]) for c in range(3)]), atol=1e-5)
     assert np.allclose(near.rate, pick(every.rate), atol=1e-5) and np.allclose(near.curv, pick(every.curv), atol=1e-4)
+
+
+def test_rounded_scene_keeps_its_primitives():
+    scene = sc.from_dict(SCENE, capacity={"cuboids": 9})
+    r = scene.rounded()
+    assert r.capacity == {"cuboids": 16, "cylinders": 8, "spheres": 8, "points": 0}
+    pts = np.random.default_rng(0).uniform(-0.6, 1.0, (20, 3))
+    assert np.allclose(sc.distance(r, pts), sc.distance(scene, pts))

@@ -26,6 +26,7 @@ from fabrax.robot.kinematics import frame_pose
 from fabrax.robot.robot import Robot
 
 AIMS = ("joint", "pose")
+AIM_TERMS = ("goal", "posture", "ee")  # the terms that `with_*goal` set
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -47,6 +48,12 @@ class ArmFabric(Fabric):
         for k, v in values.items():
             p[k] = jnp.broadcast_to(jnp.asarray(v, p[k].dtype), p[k].shape)
         return {**params, name: p}
+
+    def aimed(self, params: Params) -> Params:
+        """The goal terms of `params` (AIM_TERMS, batched or not) as a partial tree. Only these
+        differ between goals: a rollout over many goals passes them per goal and the rest once
+        (`shared` in `fabrax.rollout`)."""
+        return {k: params[k] for k in AIM_TERMS if k in params}
 
     def with_joint_goal(self, params: Params, q_goal: jax.Array, pose: bool = False) -> Params:
         """Aim the fabric at a joint configuration (also: a GFCS command). pose=True adds the

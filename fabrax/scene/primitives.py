@@ -69,6 +69,11 @@ class Scene:
         c = self.capacity
         return c["cuboids"] + c["cylinders"] + c["spheres"] + c["points"]
 
+    def rounded(self, multiple: int = 8) -> "Scene":
+        """The same scene with every kind's capacity rounded up to a multiple: scenes of similar
+        size then share one shape (one compiled solver) without the cost of a larger common one."""
+        return self.pad(**{k: -(-v // multiple) * multiple for k, v in self.capacity.items()})
+
     def pad(self, **capacity: int) -> "Scene":
         """The same scene with at least the given capacity per kind."""
         cap = {k: max(v, capacity.get(k, 0)) for k, v in self.capacity.items()}

@@ -23,7 +23,7 @@ from fabrax.fabrics.fabric import Params
 from fabrax.robot import points
 from fabrax.rollout.rollout import rollout_population
 from fabrax.rollout.trajectory import Trajectory
-from fabrax.scene import COMMON_CAPACITY, Scene
+from fabrax.scene import Scene
 
 
 @struct.dataclass
@@ -36,14 +36,18 @@ class GFCOP:
     scene: Scene
 
     @classmethod
-    def from_problem(cls, p) -> "GFCOP":
-        """From a `fabrax.problems.Problem` with a joint goal; the scene padded to `COMMON_CAPACITY`
-        so that every problem runs the same compiled solver."""
+    def from_problem(cls, p, capacity: dict[str, int] | None = None) -> "GFCOP":
+        """From a `fabrax.problems.Problem` with a joint goal. capacity: the scene padded to it
+        (e.g. `COMMON_CAPACITY`: every problem runs one compiled solver); None: its own capacity
+        rounded up to multiples of 8 (`Scene.rounded`), one compilation per size of scene. Every
+        slot costs distance evaluations at every step of every candidate: an MBM box scene (6
+        cuboids, 1 cylinder) padded to the common 56 slots stepped ~25 % slower (docs/results.md)."""
         if p.goal_q is None:
             raise ValueError(f"{p.name}: GFCS optimises joint-space commands toward a joint goal; this problem has a pose goal")
         qd = p.start_qd if p.start_qd is not None else np.zeros(len(p.start_q))
         f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
-        return cls(f32(p.start_q), f32(qd), f32(p.goal_q), p.scene.pad(**COMMON_CAPACITY))
+        scene = p.scene.rounded() if capacity is None else p.scene.pad(**capacity)
+        return cls(f32(p.start_q), f32(qd), f32(p.goal_q), scene)
 
 
 MIN_PROGRESS = 0.01  # rad: what counts as getting closer to a command (see `population_cost`'s patience)
@@ -98,7 +102,7 @@ def population_cost(
     via = None if via_tolerance is None else lambda p, q, qd: fabric.joint_reached(p, q, qd, via_tolerance)
     trajs = rollout_population(
         fabric,
-        params_seqs,
+        fabric.aimed(params_seqs),
         problem.scene,
         problem.start_q,
         problem.start_qd,
@@ -108,6 +112,7 @@ def population_cost(
         via=via,
         dt=dt,
         steps=steps,
+        shared=params,
     )
     costs = jnp.sum(trajs.segment_times, axis=-1) + penalty * (~trajs.reached) + collision_penalty * (trajs.min_clearance < 0.0)
     if length_weight:
