@@ -162,7 +162,7 @@ class GFCSMethod:
     selfsup: Any = None  # its selfsup.SelfSupConfig
     encoding: Any = None  # its encoding.Encoding
     _steps: Any = dataclasses.field(default=None, repr=False)
-    _warm: bool = dataclasses.field(default=False, repr=False)
+    _warm: set = dataclasses.field(default_factory=set, repr=False)  # scene shapes the sampler ran on
 
     def _samples(self, robot: Robot, prob, key, cfg):
         from fabrax.planners.gfcs.selfsup import learned_samples, reduce
@@ -185,9 +185,10 @@ class GFCSMethod:
             samples, wall = None, 0.0
             if self.learner is not None:
                 k_samp = jax.random.fold_in(key, 1)
-                if not self._warm:
+                shape = tuple(prob.scene.capacity.values())  # scenes keep their own size (`GFCOP.from_problem`)
+                if shape not in self._warm:
                     self._samples(robot, prob, k_samp, cfg)  # compile outside the clock
-                    self._warm = True
+                    self._warm.add(shape)
                 t0 = time.perf_counter()
                 samples = self._samples(robot, prob, k_samp, cfg)
                 wall = time.perf_counter() - t0

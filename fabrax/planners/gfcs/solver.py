@@ -2,10 +2,10 @@
 
 Batch 1 evaluates the sampler's candidates (uniform in the joint limits, or an
 energy-based model's samples); CMA-ES starts from them (its mean at their
-weighted elite after one `tell`) and proposes batches 2..N_iters. Each batch is
-one jitted call: roll the whole population out in one `vmap`, rank, `tell`,
-`ask` the next population. Results after every batch are kept so that a
-benchmark can report "1 b" and "5 b" from one run.
+weighted elite after one `tell`) and proposes batches 2..N_iters. A batch is
+three compiled calls that stay on the device: `ask`, the population rolled
+out in one `vmap` (`population_cost`), `tell`. Results after every batch are
+kept so that a benchmark can report "1 b" and "5 b" from one run.
 """
 
 from __future__ import annotations
@@ -89,37 +89,42 @@ def _evaluate(fabric, params: Params, problem: GFCOP, pop: jax.Array, cfg: GFCSC
     return costs, jax.tree.map(lambda a: a[k], trajs)
 
 
-def make_step(fabric, params: Params, cfg: GFCSConfig):
-    """(first, step): the batch functions, each a `Compiled`. first(problem, samples, key) evaluates the
-    warm-start samples and initialises CMA-ES from them; step(problem, state, key) asks, evaluates and tells."""
+@dataclasses.dataclass(frozen=True)
+class BatchFns:
+    """The batch's functions, each a `Compiled`: the population rollout, compiled once per problem
+    shape (the scene's capacity), and CMA-ES's, once per solver. One jitted batch (ask, roll out,
+    tell) compiled the rollout twice, for the first batch and the later ones."""
+
+    evaluate: Compiled  # (problem, pop) -> (costs, best candidate's trajectory)
+    start: Compiled  # (samples, costs, key) -> CMA-ES state, its mean at the samples' weighted elite
+    ask: Compiled  # (state, key) -> (pop, state)
+    tell: Compiled  # (pop, costs, state, key) -> state
+
+
+def make_step(fabric, params: Params, cfg: GFCSConfig) -> BatchFns:
+    """The batch functions; build them once and pass them to `solve` for many problems."""
     dof = fabric.robot.dof
     es = CMA_ES(population_size=cfg.population, solution=jnp.zeros((cfg.n_commands, dof)))
     es_params = es.default_params.replace(std_init=cfg.std_init)
 
-    @jax.jit
-    def first(problem: GFCOP, samples: jax.Array, key: jax.Array):
-        costs, best = _evaluate(fabric, params, problem, samples, cfg)
+    def start(samples, costs, key):
         k_init, k_tell = jax.random.split(key)
         state = es.init(k_init, jnp.mean(samples, axis=0), es_params)
-        state, _ = es.tell(k_tell, samples, costs, state, es_params)
-        return state, samples, costs, best
+        return es.tell(k_tell, samples, costs, state, es_params)[0]
 
-    @jax.jit
-    def step(problem: GFCOP, state, key: jax.Array):
-        k_ask, k_tell = jax.random.split(key)
-        pop, state = es.ask(k_ask, state, es_params)
-        costs, best = _evaluate(fabric, params, problem, pop, cfg)
-        state, _ = es.tell(k_tell, pop, costs, state, es_params)
-        return state, pop, costs, best
-
-    return Compiled(first), Compiled(step)
+    return BatchFns(
+        evaluate=Compiled(jax.jit(lambda problem, pop: _evaluate(fabric, params, problem, pop, cfg))),
+        start=Compiled(jax.jit(start)),
+        ask=Compiled(jax.jit(lambda state, key: es.ask(key, state, es_params))),
+        tell=Compiled(jax.jit(lambda pop, costs, state, key: es.tell(key, pop, costs, state, es_params)[0])),
+    )
 
 
 def solve(fabric, params: Params, problem: GFCOP, key: jax.Array, cfg: GFCSConfig = GFCSConfig(), samples=None, steps_fns=None) -> GFCSResult:
     """Algorithm 1 on one problem. samples: (population, n, dof) warm-start candidates in the
     unconstrained space (default: uniform). steps_fns: reuse `make_step(...)` across problems."""
     robot = fabric.robot
-    first, step = steps_fns or make_step(fabric, params, cfg)
+    fns = steps_fns or make_step(fabric, params, cfg)
     key, k_samp = jax.random.split(key)
     if samples is None:
         samples = uniform_sampler(k_samp, robot, cfg.population, cfg.n_commands)
@@ -128,11 +133,12 @@ def solve(fabric, params: Params, problem: GFCOP, key: jax.Array, cfg: GFCSConfi
     if cfg.direct:  # every command at the start is passed at once: the rollout is the fabric alone
         samples = jnp.asarray(samples).at[0].set(to_unconstrained(problem.start_q, robot.lower, robot.upper))
     keys = jax.random.split(key, cfg.batches)
-    first_c, compile_s = first.get(problem, samples, keys[0])
-    step_c = None
+    costs_s = jax.ShapeDtypeStruct((cfg.population,), jnp.float32)
+    (evaluate, c0), (start, c1) = fns.evaluate.get(problem, samples), fns.start.get(samples, costs_s, keys[0])
+    compile_s = c0 + c1
     if cfg.batches > 1:
-        step_c, step_s = step.get(problem, first_c.out_info[0], keys[0])  # the CMA-ES state's shapes
-        compile_s += step_s
+        (ask, c0), (tell, c1) = fns.ask.get(start.out_info, keys[0]), fns.tell.get(samples, costs_s, start.out_info, keys[0])
+        compile_s += c0 + c1
 
     all_z, all_cost, per_batch = [], [], []
     best_cost, best_traj, best_z = np.inf, None, None
@@ -140,9 +146,14 @@ def solve(fabric, params: Params, problem: GFCOP, key: jax.Array, cfg: GFCSConfi
     for b in range(cfg.batches):
         t0 = time.perf_counter()
         if b == 0:
-            state, pop, costs, traj = first_c(problem, samples, keys[0])
+            pop = samples
+            costs, traj = evaluate(problem, pop)
+            state = start(pop, costs, keys[0])
         else:
-            state, pop, costs, traj = step_c(problem, state, keys[b])
+            k_ask, k_tell = jax.random.split(keys[b])
+            pop, state = ask(state, k_ask)
+            costs, traj = evaluate(problem, pop)
+            state = tell(pop, costs, state, k_tell)
         costs = np.asarray(jax.block_until_ready(costs))
         wall = time.perf_counter() - t0
         pop = np.asarray(pop)
