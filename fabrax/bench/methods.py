@@ -63,7 +63,6 @@ class FabricMethod:
     def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]:
         from fabrax.compiled import Compiled
         from fabrax.rollout import reach
-        from fabrax.scene import COMMON_CAPACITY
 
         if self._run is None:
             steps = int(round(self.t_max / self.dt))
@@ -72,7 +71,9 @@ class FabricMethod:
         for start in range(0, len(problems), self.batch_size):
             chunk = problems[start : start + self.batch_size]
             size = min(self.batch_size, 1 << (len(chunk) - 1).bit_length())  # few batch shapes: few compilations
-            padded = [dataclasses.replace(p, scene=p.scene.pad(**COMMON_CAPACITY)) for p in chunk + [chunk[-1]] * (size - len(chunk))]
+            # one shape per batch: the largest of its scenes, rounded to 8 slots per kind (`Scene.rounded`)
+            cap = {k: max(p.scene.rounded().capacity[k] for p in chunk) for k in chunk[0].scene.capacity}
+            padded = [dataclasses.replace(p, scene=p.scene.pad(**cap)) for p in chunk + [chunk[-1]] * (size - len(chunk))]
             b = batch(padded)
             run, compile_s = self._run.get(b)
             t0 = time.perf_counter()
