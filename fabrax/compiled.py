@@ -25,3 +25,11 @@ class Compiled:
         t0 = time.perf_counter()
         self.cache[key] = self.fn.lower(*args).compile()
         return self.cache[key], time.perf_counter() - t0
+
+
+def run(executable, *args):
+    """Call an executable from `Compiled.get` with its arguments placed as it was compiled for. An
+    executable compiled ahead of time refuses arrays sharded otherwise (e.g. one function's output,
+    split over the devices, passed to another compiled apart); placing them is a no-op when they
+    already match."""
+    return executable(*jax.device_put(args, executable.input_shardings[0]))

@@ -2,7 +2,7 @@
 
 The same script runs in two fresh processes, with one and with two XLA host
 devices (FABRAX_CPU_DEVICES), on a rollout batch (also run as sub-batches of one
-arm), a GFCS-style population, a geodesic batch and a batch of 5 padded to 6;
+arm), a GFCS-style population, a GFCS solve, a geodesic batch and a batch of 5 padded to 6;
 the two-device run must actually split them.
 """
 
@@ -28,6 +28,7 @@ SCRIPT = textwrap.dedent(
     from fabrax.problems.generators import flying_cuboids, random_problems
     from fabrax.rollout import reach, rollout_population
     from fabrax.skills import geodesic
+    from fabrax.planners.gfcs import GFCOP, GFCSConfig, solve
 
     robot = config.load_robot()
     fab, params = config.load_fabric(robot)
@@ -47,6 +48,7 @@ SCRIPT = textwrap.dedent(
     starts = jnp.asarray([[-1.0, 0.1], [-1.0, -0.2], [-0.8, 0.3], [-1.2, 0.0]])
     geo = geodesic.solver(bump, geodesic.GeodesicConfig(iters=50))(jnp.float32(2.0), starts, -starts[:, ::-1])
     odd = jax.jit(sharding.batched(jax.vmap(lambda z: jnp.sin(z) * jnp.sum(z * z))))(jnp.arange(15.0).reshape(5, 3))  # padded to 6
+    gfcs = solve(fab, params, GFCOP.from_problem(problems[0]), jax.random.PRNGKey(0), GFCSConfig(population=4, batches=2, t_max=0.6))
 
     print(json.dumps({
         "devices": jax.local_device_count(),
@@ -54,6 +56,7 @@ SCRIPT = textwrap.dedent(
         "odd": np.asarray(odd).tolist(),
         "reach_q": np.asarray(tr.q).tolist(), "reach_len": np.asarray(tr.length).tolist(), "sub_q": np.asarray(sub.q).tolist(),
         "pop_q": np.asarray(pop.q).tolist(), "geo_energy": np.asarray(geo.energy).tolist(),
+        "gfcs_first": [float(b["best_cost"]) for b in gfcs.per_batch][0],
     }))
     """
 )
@@ -72,7 +75,7 @@ def test_two_devices_split_the_batches_and_match_one_device():
     assert one["devices"] == 1 and two["devices"] == 2
     assert one["split"] == [False] * 4 and two["split"] == [True] * 4
     assert one["reach_len"] == two["reach_len"]
-    for key in ("reach_q", "pop_q", "geo_energy", "sub_q", "odd"):
+    for key in ("reach_q", "pop_q", "geo_energy", "sub_q", "odd", "gfcs_first"):  # GFCS: its first batch's best cost
         assert np.allclose(np.asarray(one[key]), np.asarray(two[key]), atol=1e-5), key
     for run in (one, two):  # sub-batched rollouts are the whole batch's
         assert np.allclose(np.asarray(run["sub_q"]), np.asarray(run["reach_q"]), atol=1e-5)

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from evosax.algorithms import CMA_ES
 
-from fabrax.compiled import Compiled
+from fabrax.compiled import Compiled, run
 from fabrax.fabrics.fabric import Params
 from fabrax.planners.gfcs.cost import GFCOP, population_cost, to_commands, to_unconstrained
 from fabrax.rollout.trajectory import Trajectory
@@ -133,9 +133,10 @@ def solve(fabric, params: Params, problem: GFCOP, key: jax.Array, cfg: GFCSConfi
     if cfg.direct:  # every command at the start is passed at once: the rollout is the fabric alone
         samples = jnp.asarray(samples).at[0].set(to_unconstrained(problem.start_q, robot.lower, robot.upper))
     keys = jax.random.split(key, cfg.batches)
-    costs_s = jax.ShapeDtypeStruct((cfg.population,), jnp.float32)
-    (evaluate, c0), (start, c1) = fns.evaluate.get(problem, samples), fns.start.get(samples, costs_s, keys[0])
-    compile_s = c0 + c1
+    evaluate, compile_s = fns.evaluate.get(problem, samples)
+    costs_s = evaluate.out_info[0]  # with its sharding: the population splits over the local devices
+    start, c1 = fns.start.get(samples, costs_s, keys[0])
+    compile_s += c1
     if cfg.batches > 1:
         (ask, c0), (tell, c1) = fns.ask.get(start.out_info, keys[0]), fns.tell.get(samples, costs_s, start.out_info, keys[0])
         compile_s += c0 + c1
@@ -147,13 +148,13 @@ def solve(fabric, params: Params, problem: GFCOP, key: jax.Array, cfg: GFCSConfi
         t0 = time.perf_counter()
         if b == 0:
             pop = samples
-            costs, traj = evaluate(problem, pop)
-            state = start(pop, costs, keys[0])
+            costs, traj = run(evaluate, problem, pop)
+            state = run(start, pop, costs, keys[0])
         else:
             k_ask, k_tell = jax.random.split(keys[b])
-            pop, state = ask(state, k_ask)
-            costs, traj = evaluate(problem, pop)
-            state = tell(pop, costs, state, k_tell)
+            pop, state = run(ask, state, k_ask)
+            costs, traj = run(evaluate, problem, pop)
+            state = run(tell, pop, costs, state, k_tell)
         costs = np.asarray(jax.block_until_ready(costs))
         wall = time.perf_counter() - t0
         pop = np.asarray(pop)
