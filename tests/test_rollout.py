@@ -142,6 +142,8 @@ def test_population_matches_vmap_and_stops_when_enough_arrived(fabric):
     part = jax.jit(lambda s: rollout_population(fab, fab.aimed(s), scene, READY, jnp.zeros(7), fab.reached, shared=params, **kw))(seqs)
     assert set(fab.aimed(seqs)) < set(params) and np.array_equal(np.asarray(one.length), np.asarray(part.length))
     assert np.allclose(np.asarray(one.q), np.asarray(part.q), atol=1e-4)
+    with pytest.raises(ValueError, match="not in `shared`"):
+        rollout_population(fab, fab.aimed(seqs), scene, READY, jnp.zeros(7), fab.reached, shared={"goal": params["goal"]}, **kw)
     first = int(np.argmin(np.where(np.asarray(one.reached), np.asarray(one.length), 10**6)))
     early = jax.jit(lambda s: rollout_population(fab, s, scene, READY, jnp.zeros(7), fab.reached, enough=1, **kw))(seqs)
     assert bool(early.reached[first]) and int(early.reached.sum()) < int(one.reached.sum())

@@ -85,6 +85,11 @@ class _Carry:
     since: jax.Array  # steps since `best` last fell by min_progress
 
 
+def _check_shared(shared: Params | None, varying: Params, name: str) -> None:
+    if shared is not None and not set(varying) <= set(shared):
+        raise ValueError(f"{name}: terms {sorted(set(varying) - set(shared))} are not in `shared`; pass the full parameters as `shared`")
+
+
 def _merge(shared: Params | None, varying: Params) -> Params:
     """`shared` with the leaves of the partial tree `varying` (same nested keys) put in."""
     if shared is None:
@@ -218,6 +223,7 @@ def rollout_sequence(
     """
     validate.vector("q0", q0, fabric.robot.dof)
     validate.vector("qd0", qd0, fabric.robot.dof)
+    _check_shared(shared, params_seq, "params_seq")
     m = jax.tree.leaves(params_seq)[0].shape[0]
     opts = dict(dt=dt, steps=steps, integrator=integrator, limits=limits, chunk=chunk, patience=patience, via=via, shared=shared)
     init, body, finish, n_chunks = _program(fabric, scene, q0, qd0, reached, m, stop_at_goal=stop_at_goal, **opts)
@@ -261,6 +267,7 @@ def rollout_population(
     validate.vector("qd0", qd0, fabric.robot.dof)
     if shrink < 1:
         raise ValueError(f"shrink must be at least 1 (1: never shrink), got {shrink}")
+    _check_shared(shared, params_seqs, "params_seqs")
     m = jax.tree.leaves(params_seqs)[0].shape[1]
     opts = dict(dt=dt, steps=steps, integrator=integrator, limits=limits, chunk=chunk, patience=patience, via=via, shared=shared)
     init, body, finish, n_chunks = _program(fabric, scene, q0, qd0, reached, m, stop_at_goal=True, **opts)
