@@ -72,7 +72,7 @@ class FabricMethod:
             chunk = problems[start : start + self.batch_size]
             size = min(self.batch_size, 1 << (len(chunk) - 1).bit_length())  # few batch shapes: few compilations
             # one shape per batch: the largest of its scenes, rounded to 8 slots per kind (`Scene.rounded`)
-            cap = {k: max(p.scene.rounded().capacity[k] for p in chunk) for k in chunk[0].scene.capacity}
+            cap = {k: -(-max(p.scene.capacity[k] for p in chunk) // 8) * 8 for k in chunk[0].scene.capacity}
             padded = [dataclasses.replace(p, scene=p.scene.pad(**cap)) for p in chunk + [chunk[-1]] * (size - len(chunk))]
             b = batch(padded)
             run, compile_s = self._run.get(b)
