@@ -39,3 +39,19 @@ def matvec(m: jax.Array, v: jax.Array) -> jax.Array:
 def matvec0(m: jax.Array, v: jax.Array) -> jax.Array:
     """(m v)_i = sum_j m[i, j] v[j] for m (d, e, ...) and v (e, ...)."""
     return jnp.stack([dot0(m[i], v) for i in range(m.shape[0])])
+
+
+def written(x: jax.Array) -> jax.Array:
+    """x, computed once into memory rather than fused into (and recomputed, or read with strides, by)
+    each consumer. XLA's CPU fusion does not fuse a reduction into the loops that consume it, so x
+    goes through one: the sum of x and zeros over a leading axis of two (exact: x + 0 = x). A
+    heuristic of XLA's, not a guarantee: measure (docs/results.md)."""
+    return jnp.sum(jnp.stack([x, jnp.zeros_like(x)]), axis=0)
+
+
+def batch_minor(x: jax.Array) -> jax.Array:
+    """x (B, ...) as (..., B), `written`: the batch becomes the minor axis, along which XLA on CPU
+    vectorises (e.g. gathers of whole rows of arms, minima across rows). A plain transpose is fused
+    into its consumers, which then read every element with a stride (a self-collision search ran
+    1.3x slower so)."""
+    return written(jnp.moveaxis(x, 0, -1))

@@ -194,6 +194,35 @@ def test_bad_robot_inputs(tmp_path):
         build_robot({"acceleration": [-1.0] * 7})
 
 
+def test_self_collision_rows_are_the_jacobians_difference(panda, tmp_path):
+    """The self-collision rows u_a = (J_i - J_j)[:, a]^T n, built from the joint axes and origins alone
+    (`terms._pair_rows`), equal the difference of the point Jacobians for every pair of spheres on
+    two frames, with a revolute and a prismatic arm; a joint that moves both spheres gives exactly 0."""
+    from fabrax.fabrics.terms import _pair_rows
+    from fabrax.soa import cross0, dot0
+
+    path = tmp_path / "planar.urdf"
+    path.write_text(TWO_LINK)
+    other = build_robot({"urdf": str(path), "spheres": {"budget": 8}, "self_collision": {"samples": 100}})
+    with jax.enable_x64(True):
+        for robot in (panda, other):
+            rng = np.random.default_rng(4)
+            q = jnp.asarray(rng.uniform(robot.lower, robot.upper))
+            kin = point_kinematics(robot, q, jnp.zeros(robot.dof), robot.sphere_frame, robot.sphere_local.astype(jnp.float64))
+            frame = np.asarray(robot.sphere_frame)
+            i, j = np.triu_indices(len(frame), 1)
+            i, j = i[frame[i] != frame[j]], j[frame[i] != frame[j]]
+            rel = kin.x[:, i] - kin.x[:, j]
+            n = rel / jnp.linalg.norm(rel, axis=0)
+            mi, mj = robot.ancestors[frame[i]].T, robot.ancestors[frame[j]].T
+            rows = _pair_rows(
+                robot.joint_revolute, mi & ~mj, mj & ~mi, kin.axes[:, :, None], cross0(kin.axes, kin.origins)[:, :, None], kin.x[:, i], kin.x[:, j], n
+            )
+            want = [dot0(kin.jac[:, a, i] - kin.jac[:, a, j], n) for a in range(robot.dof)]
+            assert jnp.allclose(jnp.stack(rows), jnp.stack(want), atol=1e-12)
+            assert not jnp.any(jnp.stack(rows)[np.asarray(mi & mj)])  # rigidly moved together: exactly 0
+
+
 def test_point_kinematics_matches_forward_autodiff(panda, tmp_path):
     """The recursive (analytic) kinematics equal nested jvps of FK, also with a prismatic joint."""
     path = tmp_path / "planar.urdf"

@@ -111,6 +111,9 @@ def test_argmin_packed_and_nearest_distance(boxes):
     rng = np.random.default_rng(4)
     v = jnp.asarray(rng.uniform(-0.5, 5.0, (40, 23)), jnp.float32)
     assert np.array_equal(np.asarray(sc.sdf.argmin_packed(v)), np.asarray(jnp.argmin(v, -1)))
+    v3 = v.reshape(5, 8, 23)
+    for axis in (0, 1, -1):
+        assert np.array_equal(np.asarray(sc.sdf.argmin_packed(v3, axis=axis)), np.asarray(jnp.argmin(v3, axis)))
     quats = rng.normal(size=(boxes - 1, 4))
     quats /= np.linalg.norm(quats, axis=1, keepdims=True)
     extra = [

@@ -29,7 +29,7 @@ from flax import struct
 
 from fabrax.fabrics.spec import Spec, energize_alpha, solve
 from fabrax.fabrics.terms import Contribution, Term, TermInputs
-from fabrax.robot.kinematics import PointKinematics, point_kinematics
+from fabrax.robot.kinematics import point_kinematics
 from fabrax.robot.robot import Robot
 from fabrax.scene import Scene
 from fabrax.soa import matvec
@@ -94,7 +94,7 @@ class Fabric:
             start = 0
             for key, (f, _) in sets.items():
                 sl = slice(start, start + f.shape[0])
-                kin[key] = PointKinematics(allk.x[:, sl], allk.jac[..., sl], allk.xd[:, sl], allk.jdqd[:, sl])
+                kin[key] = allk._replace(x=allk.x[:, sl], jac=allk.jac[..., sl], xd=allk.xd[:, sl], jdqd=allk.jdqd[:, sl])
                 start += f.shape[0]
         total = Contribution.zeros(q.shape[0], q.dtype)
         for t in self.terms:

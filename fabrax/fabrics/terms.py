@@ -30,7 +30,7 @@ from fabrax.robot.kinematics import PointKinematics
 from fabrax.robot.robot import Robot
 from fabrax.scene import FAR, Scene, distance_kinematics
 from fabrax.scene.sdf import argmin_packed, nearest_distance
-from fabrax.soa import dot0, matvec, matvec0
+from fabrax.soa import batch_minor, cross0, dot0, matvec, matvec0
 
 
 @struct.dataclass
@@ -404,20 +404,140 @@ def closest_link_pairs(robot: Robot, x: jax.Array) -> tuple[jax.Array, jax.Array
     each gap through two levels of indices, 7-9 % of a batched step. The work grows with the
     checked pairs alone: a dense search over all spheres of both links was 3x slower with the
     MotionBenchMaker sphere set, where XLA fused its minima into a gather that recomputed them per
-    link pair (docs/results.md).
+    link pair (docs/results.md). Under `jax.vmap` it runs with the arms as the minor axis
+    (`self_collision`).
     """
-    i, j = robot.pair_i, robot.pair_j
-    if i.shape[0] == 0:
-        return i, j
-    gi, gj = i[robot.pair_groups], j[robot.pair_groups]  # (G, Q): the chunks' spheres, constants
+    if robot.pair_i.shape[0] == 0:
+        return robot.pair_i, robot.pair_j
+    return _closest_one(jax.lax.stop_gradient(x), *_search_tables(robot))
+
+
+def _search_tables(robot: Robot) -> tuple:
+    return (
+        robot.sphere_radius,
+        robot.pair_i,
+        robot.pair_j,
+        robot.pair_groups,
+        robot.pair_groups_mask,
+        robot.link_pair_groups,
+        robot.link_pair_groups_mask,
+    )
+
+
+def _closest_one(x, radius, i, j, groups, groups_mask, link_groups, link_groups_mask):
+    gi, gj = i[groups], j[groups]  # (G, Q): the chunks' spheres, constants
     rel = x[:, gi] - x[:, gj]
-    gap = jnp.sqrt(dot0(rel, rel)) - robot.sphere_radius[gi] - robot.sphere_radius[gj]
-    grouped = jnp.where(robot.pair_groups_mask, gap, FAR)
+    gap = jnp.sqrt(dot0(rel, rel)) - radius[gi] - radius[gj]
+    grouped = jnp.where(groups_mask, gap, FAR)
     slot = argmin_packed(grouped)
-    best = jnp.take_along_axis(robot.pair_groups, slot[:, None], -1)[:, 0]
-    chunk_gap = jnp.where(robot.link_pair_groups_mask, jnp.take_along_axis(grouped, slot[:, None], -1)[:, 0][robot.link_pair_groups], FAR)
-    best = best[jnp.take_along_axis(robot.link_pair_groups, argmin_packed(chunk_gap)[:, None], -1)[:, 0]]
+    best = jnp.take_along_axis(groups, slot[:, None], -1)[:, 0]
+    chunk_gap = jnp.where(link_groups_mask, jnp.take_along_axis(grouped, slot[:, None], -1)[:, 0][link_groups], FAR)
+    best = best[jnp.take_along_axis(link_groups, argmin_packed(chunk_gap)[:, None], -1)[:, 0]]
     return i[best], j[best]
+
+
+def _closest_minor(xt, radius, i, j, groups, groups_mask, link_groups, link_groups_mask):
+    """`_closest_one` of arms xt (3, S, B), the arms minor: the same operations and values, so the same
+    pairs, as (LP, B) indices."""
+    gi, gj = i[groups], j[groups]
+    rel = xt[:, gi] - xt[:, gj]  # (3, G, Q, B): rows of arms
+    gap = jnp.sqrt(dot0(rel, rel)) - (radius[gi] + radius[gj])[..., None]
+    grouped = jnp.where(groups_mask[..., None], gap, FAR)
+    slot = argmin_packed(grouped, axis=1)[:, None]  # (G, 1, B)
+    best = jnp.take_along_axis(jnp.broadcast_to(groups[..., None], grouped.shape), slot, 1)[:, 0]  # (G, B)
+    chunk_gap = jnp.where(link_groups_mask[..., None], jnp.take_along_axis(grouped, slot, 1)[:, 0][link_groups], FAR)  # (LP, C, B)
+    rows = argmin_packed(chunk_gap, axis=1)[:, None]
+    rows = jnp.take_along_axis(jnp.broadcast_to(link_groups[..., None], chunk_gap.shape), rows, 1)[:, 0]  # (LP, B)
+    best = jnp.take_along_axis(best, rows, 0)
+    return i[best], j[best]
+
+
+def _pair_rows(revolute: tuple, only_i, only_j, z, zo, xi, xj, n) -> list[jax.Array]:
+    """u_a = (J_i - J_j)[:, a]^T n of sphere pairs with centres xi, xj (3, P, ...) and unit normal n
+    along x_i - x_j, one row per joint a, from the world joint axes z and z_a x o_a (3, n, ...) alone;
+    only_i[a] / only_j[a]: joint a moves sphere i but not j / j but not i.
+
+    A joint that moves both spheres moves them rigidly: z_a x (x_i - x_j) and z_a - z_a are normal
+    to n, so its row is 0. Otherwise u_a = (z_a x (x_i - o_a)) . n = z_a . (x_i x n) - (z_a x o_a) . n
+    for a revolute joint and z_a . n for a prismatic one (minus the same for j): no Jacobian
+    columns gathered per pair."""
+    xin, xjn = cross0(xi, n), cross0(xj, n)
+    rows = []
+    for a, rev in enumerate(revolute):
+        za = z[:, a]
+        if rev:
+            t = dot0(zo[:, a], n)
+            wi, wj = dot0(za, xin) - t, dot0(za, xjn) - t
+        else:
+            wi = wj = dot0(za, n)
+        rows.append(jnp.where(only_i[a], wi, 0.0) - jnp.where(only_j[a], wj, 0.0))
+    return rows
+
+
+def _pairs_contribution(p, xi, xj, vij, aij, rij, rows: Callable[[jax.Array], list[jax.Array]]) -> Contribution:
+    """The self-collision contribution of sphere pairs: centres xi, xj, relative velocity vij and
+    curvature term aij (3, P, ...), radius sums rij (P, ...), rows(n) the pullback rows u_a (P, ...)
+    for normals n; any trailing axes are batch axes."""
+    rel = xi - xj
+    dist = jnp.sqrt(dot0(rel, rel) + 1e-18)
+    nrm = rel / dist
+    rate = dot0(nrm, vij)
+    curv = (dot0(vij, vij) - rate * rate) / dist + dot0(nrm, aij)
+    return _pulled_pairs(p, dist - rij - p["margin"], rate, curv, rows(nrm), jnp.maximum(dot0(vij, vij) - rate * rate, 0.0))
+
+
+def _self_collision_fn(revolute: tuple, link: bool):
+    """The self-collision contribution of one arm, f(p, x, xd, jdqd, axes, origins, jac, *tables), whose
+    `jax.vmap` runs with the arms as the minor axis (`jax.custom_batching.custom_vmap`).
+
+    XLA on CPU vectorises along the minor axis, and `vmap` puts the arms major: per arm, the
+    search gathered single floats and the pullback's sums over the pairs ran as scalar code.
+    With the arms minor (centres transposed once, `soa.batch_minor`) the search gathers whole rows
+    of arms, the sums add rows, and the rows u_a come from the joint axes (`_pair_rows`) rather
+    than from Jacobian columns gathered per pair. A batched fabric step took 0.73-0.81 of the time
+    (64-256 arms, panda and panda_mbm, docs/results.md). One arm, and derivatives (a custom_vmap
+    has no reverse mode), keep the per-arm code.
+    """
+
+    def one(p, x, xd, jdqd, axes, origins, jac, radius, pi, pj, groups, gmask, lgroups, lgmask, ancestors, fi, fj):
+        i, j = _closest_one(jax.lax.stop_gradient(x), radius, pi, pj, groups, gmask, lgroups, lgmask) if link else (pi, pj)
+        rows = lambda n: [dot0(jac[:, a][:, i] - jac[:, a][:, j], n) for a in range(jac.shape[1])]  # noqa: E731
+        return _pairs_contribution(p, x[:, i], x[:, j], xd[:, i] - xd[:, j], jdqd[:, i] - jdqd[:, j], radius[i] + radius[j], rows)
+
+    def minor(p, x, xd, jdqd, axes, origins, jac, radius, pi, pj, groups, gmask, lgroups, lgmask, ancestors, fi, fj):
+        xt = batch_minor(x)  # (3, S, B)
+        if link:
+            i, j = _closest_minor(jax.lax.stop_gradient(xt), radius, pi, pj, groups, gmask, lgroups, lgmask)  # (P, B)
+        else:
+            i, j = jnp.broadcast_to(pi[:, None], (pi.shape[0], x.shape[0])), jnp.broadcast_to(pj[:, None], (pj.shape[0], x.shape[0]))
+        arm = jnp.arange(x.shape[0])
+
+        def take(a, k):  # a (B, 3, S) at k (P, B) -> (3, P, B), gathered from the arms-major array: XLA
+            return jnp.moveaxis(a[arm, :, k], -1, 0)  # then computes a (e.g. Jdot qd) only at the picked spheres
+
+        mi, mj = ancestors[fi].T[..., None], ancestors[fj].T[..., None]  # (n, P, 1)
+        z = batch_minor(axes)[:, :, None]  # (3, n, 1, B)
+        zo = batch_minor(jnp.cross(axes, origins, axis=1))[:, :, None]
+        xi, xj = take(x, i), take(x, j)
+        rows = lambda n: _pair_rows(revolute, mi & ~mj, mj & ~mi, z, zo, xi, xj, n)  # noqa: E731
+        c = _pairs_contribution(p, xi, xj, take(xd, i) - take(xd, j), take(jdqd, i) - take(jdqd, j), radius[i] + radius[j], rows)
+        return jax.tree.map(lambda a: jnp.moveaxis(a, -1, 0), c)  # the arms back to the front
+
+    fast = jax.custom_batching.custom_vmap(one)
+    fn = jax.custom_jvp(fast)
+    fn.defjvp(lambda primals, tangents: jax.jvp(one, primals, tangents))  # derivatives: the per-arm code
+
+    @fast.def_vmap
+    def _(axis_size, batched, p, *arrays):
+        if any(batched[7:]) or not any(batched[1:7]):  # robots batched, or only the parameters: per arm
+            axes = (jax.tree.map(lambda b: 0 if b else None, batched[0]),) + tuple(0 if b else None for b in batched[1:])
+            out = jax.vmap(one, in_axes=axes, axis_size=axis_size)(p, *arrays)
+        else:
+            kin = [a if b else jnp.broadcast_to(a, (axis_size,) + a.shape) for a, b in zip(arrays[:6], batched[1:7])]
+            out = minor(p, *kin, *arrays[6:])
+        return out, jax.tree.map(lambda _: True, out)
+
+    return fn
 
 
 def self_collision(name: str = "self_collision", resolution: str = "link", **overrides) -> Term:
@@ -426,24 +546,20 @@ def self_collision(name: str = "self_collision", resolution: str = "link", **ove
     resolution="link": one distance per pair of links, the thesis' link-to-link
     distance, measured by their closest checked sphere pair
     (`closest_link_pairs`); "sphere": every checked sphere pair. Each distance
-    pulls back through both spheres: u = J_i^T n - J_j^T n, M = sum m u u^T.
+    pulls back through both spheres: u = J_i^T n - J_j^T n, M = sum m u u^T (`_pair_rows`).
     """
     _check_resolution(resolution, name)
     init = _params(_distance_defaults(), overrides, name)
 
     def apply(p, inp: TermInputs) -> Contribution:
         kin, robot = inp.points, inp.robot
-        i, j = robot.pair_i, robot.pair_j
-        if resolution == "link":
-            i, j = closest_link_pairs(robot, kin.x)
-        rel, reld = kin.x[:, i] - kin.x[:, j], kin.xd[:, i] - kin.xd[:, j]  # (3, P)
-        dist = jnp.sqrt(dot0(rel, rel) + 1e-18)
-        nrm = rel / dist
-        rate = dot0(nrm, reld)
-        curv = (dot0(reld, reld) - rate * rate) / dist + dot0(nrm, kin.jdqd[:, i] - kin.jdqd[:, j])
-        x = dist - robot.sphere_radius[i] - robot.sphere_radius[j] - p["margin"]
-        u = [dot0(kin.jac[:, a][:, i] - kin.jac[:, a][:, j], nrm) for a in range(kin.jac.shape[1])]  # J_i^T n - J_j^T n
-        return _pulled_pairs(p, x, rate, curv, u, jnp.maximum(dot0(reld, reld) - rate * rate, 0.0))
+        link = resolution == "link" and robot.pair_i.shape[0] > 0
+        fi, fj = robot.sphere_frame[robot.pair_i], robot.sphere_frame[robot.pair_j]  # every row's two frames
+        if link:  # one row per link pair: the frames of any of its pairs
+            first = robot.pair_groups[robot.link_pair_groups[:, 0], 0]
+            fi, fj = fi[first], fj[first]
+        fn = _self_collision_fn(robot.joint_revolute, link)
+        return fn(p, kin.x, kin.xd, kin.jdqd, kin.axes, kin.origins, kin.jac, *_search_tables(robot), robot.ancestors, fi, fj)
 
     return Term(name, init, apply, _spheres)
 

@@ -26,6 +26,8 @@ class PointKinematics(NamedTuple):
     jac: jax.Array  # (3, n, N) Jacobians
     xd: jax.Array  # (3, N) velocities J qd
     jdqd: jax.Array  # (3, N) curvature terms Jdot qd
+    axes: jax.Array  # (3, n) world joint axes z_a (Jacobian columns: z_a x (x - o_a) or z_a)
+    origins: jax.Array  # (3, n) world joint origins o_a
 
 
 def _skew(a):
@@ -97,7 +99,7 @@ def point_kinematics(robot, q, qd, frame, local) -> PointKinematics:
     xd = sum(jac[:, i] * qd[i] for i in range(jac.shape[1]))
     jdot = jnp.where(rev[None, :, None], cross0(wz[:, :, None], arm) + cross0(z[:, :, None], xd[:, None, :] - od[:, :, None]), wz[:, :, None])
     jdqd = sum(jnp.where(moves[0, i], jdot[:, i] * qd[i], 0.0) for i in range(jac.shape[1]))
-    return PointKinematics(x, jac, xd, jdqd)
+    return PointKinematics(x, jac, xd, jdqd, z, o)
 
 
 def link_poses(robot, q) -> jaxlie.SE3:

@@ -135,8 +135,8 @@ def distance_kinematics(scene: Scene, x: jax.Array, xd: jax.Array) -> PairDistan
     return PairDistances(jnp.where(live, d, FAR), n * live[None], rate * live, curv * live, mask)
 
 
-def argmin_packed(values: jax.Array, offset: float = 2.0) -> jax.Array:
-    """Index of the smallest value along the last axis, for values > -offset (ties: the first).
+def argmin_packed(values: jax.Array, offset: float = 2.0, axis: int = -1) -> jax.Array:
+    """Index of the smallest value along `axis`, for values > -offset (ties: the first).
 
     The bits of the positive floats `values + offset` order like integers; their
     lowest bits are replaced by the index and one integer min-reduction finds
@@ -144,13 +144,15 @@ def argmin_packed(values: jax.Array, offset: float = 2.0) -> jax.Array:
     reduction as scalar code). Values closer than ~2^-(23 - index bits)
     relative are ties.
     """
-    width = values.shape[-1]
+    axis = axis % values.ndim
+    width = values.shape[axis]
     bits = max(1, int(width - 1).bit_length())
     if bits > 12:
         raise ValueError(f"too many entries ({width}) to pack an index into a float32 mantissa")
     raw = jax.lax.bitcast_convert_type(jnp.maximum(values + offset, 1e-30).astype(jnp.float32), jnp.int32)
-    key = (raw & ~((1 << bits) - 1)) | jnp.arange(width, dtype=jnp.int32)
-    return jnp.min(key, axis=-1) & ((1 << bits) - 1)
+    index = jnp.arange(width, dtype=jnp.int32).reshape((width,) + (1,) * (values.ndim - 1 - axis))
+    key = (raw & ~((1 << bits) - 1)) | index
+    return jnp.min(key, axis=axis) & ((1 << bits) - 1)
 
 
 class NearestDistance(NamedTuple):
