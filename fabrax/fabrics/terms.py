@@ -486,6 +486,16 @@ def _pairs_contribution(p, xi, xj, vij, aij, rij, rows: Callable[[jax.Array], li
     return _pulled_pairs(p, dist - rij - p["margin"], rate, curv, rows(nrm), jnp.maximum(dot0(vij, vij) - rate * rate, 0.0))
 
 
+ARMS_MINOR: bool | None = None  # self-collision under vmap with the arms minor: None = on the CPU backend only
+
+
+def arms_minor() -> bool:
+    """Whether batched self-collision runs with the arms as the minor axis (`_self_collision_fn`), read
+    at trace time: `ARMS_MINOR`, or where it is None, on the CPU backend only (the layout is for XLA's
+    CPU vectorisation; it is not measured on a GPU or TPU)."""
+    return jax.default_backend() == "cpu" if ARMS_MINOR is None else bool(ARMS_MINOR)
+
+
 def _self_collision_fn(revolute: tuple, link: bool):
     """The self-collision contribution of one arm, f(p, x, xd, jdqd, axes, origins, jac, *tables), whose
     `jax.vmap` runs with the arms as the minor axis (`jax.custom_batching.custom_vmap`).
@@ -529,7 +539,7 @@ def _self_collision_fn(revolute: tuple, link: bool):
 
     @fast.def_vmap
     def _(axis_size, batched, p, *arrays):
-        if any(batched[7:]) or not any(batched[1:7]):  # robots batched, or only the parameters: per arm
+        if not arms_minor() or any(batched[7:]) or not any(batched[1:7]):  # off, robots batched, or only the parameters: per arm
             axes = (jax.tree.map(lambda b: 0 if b else None, batched[0]),) + tuple(0 if b else None for b in batched[1:])
             out = jax.vmap(one, in_axes=axes, axis_size=axis_size)(p, *arrays)
         else:
