@@ -70,11 +70,17 @@ def test_fk_matches_mujoco_panda(panda):
     assert worst <= 1e-5
 
 
-def test_any_urdf_arm(tmp_path):
-    """A non-Panda arm with tilted axes, a prismatic joint and primitive collisions."""
-    path = tmp_path / "planar.urdf"
+@pytest.fixture(scope="module")
+def planar(tmp_path_factory):
+    """`TWO_LINK` built from its URDF: tilted axes, a prismatic joint, primitive collisions."""
+    path = tmp_path_factory.mktemp("planar") / "planar.urdf"
     path.write_text(TWO_LINK)
-    robot = build_robot({"urdf": str(path), "spheres": {"budget": 8}, "self_collision": {"samples": 100}})
+    return build_robot({"urdf": str(path), "spheres": {"budget": 8}, "self_collision": {"samples": 100}})
+
+
+def test_any_urdf_arm(planar):
+    """A non-Panda arm with tilted axes, a prismatic joint and primitive collisions."""
+    robot = planar
     assert robot.dof == 3 and robot.joint_revolute == (True, True, False)
     assert compare_with_mujoco(robot, TWO_LINK, {}) <= 1e-5
     assert robot.n_spheres <= 8 and set(robot.sphere_link_names) == {"base", "upper", "fore", "slider"}
@@ -194,18 +200,15 @@ def test_bad_robot_inputs(tmp_path):
         build_robot({"acceleration": [-1.0] * 7})
 
 
-def test_self_collision_rows_are_the_jacobians_difference(panda, tmp_path):
+def test_self_collision_rows_are_the_jacobians_difference(panda, planar):
     """The self-collision rows u_a = (J_i - J_j)[:, a]^T n, built from the joint axes and origins alone
     (`terms._pair_rows`), equal the difference of the point Jacobians for every pair of spheres on
     two frames, with a revolute and a prismatic arm; a joint that moves both spheres gives exactly 0."""
     from fabrax.fabrics.terms import _pair_rows
     from fabrax.soa import cross0, dot0
 
-    path = tmp_path / "planar.urdf"
-    path.write_text(TWO_LINK)
-    other = build_robot({"urdf": str(path), "spheres": {"budget": 8}, "self_collision": {"samples": 100}})
     with jax.enable_x64(True):
-        for robot in (panda, other):
+        for robot in (panda, planar):
             rng = np.random.default_rng(4)
             q = jnp.asarray(rng.uniform(robot.lower, robot.upper))
             kin = point_kinematics(robot, q, jnp.zeros(robot.dof), robot.sphere_frame, robot.sphere_local.astype(jnp.float64))
@@ -223,13 +226,10 @@ def test_self_collision_rows_are_the_jacobians_difference(panda, tmp_path):
             assert not jnp.any(jnp.stack(rows)[np.asarray(mi & mj)])  # rigidly moved together: exactly 0
 
 
-def test_point_kinematics_matches_forward_autodiff(panda, tmp_path):
+def test_point_kinematics_matches_forward_autodiff(panda, planar):
     """The recursive (analytic) kinematics equal nested jvps of FK, also with a prismatic joint."""
-    path = tmp_path / "planar.urdf"
-    path.write_text(TWO_LINK)
-    other = build_robot({"urdf": str(path), "spheres": {"budget": 8}, "self_collision": {"samples": 100}})
     with jax.enable_x64(True):
-        for robot in (panda, other):
+        for robot in (panda, planar):
             rng = np.random.default_rng(3)
             q = jnp.asarray(rng.uniform(robot.lower, robot.upper))
             qd = jnp.asarray(rng.normal(size=robot.dof))
