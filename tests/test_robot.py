@@ -163,9 +163,9 @@ def test_self_collision_pairs(panda):
 def test_closest_link_pairs_is_the_brute_force_minimum(robot_name, panda, request):
     """The closest-pair search finds, for every checked pair of links, a checked sphere pair of that
     link pair whose gap is the smallest over all of its checked sphere pairs (random states, within
-    the packing's resolution). panda_mbm (the MotionBenchMaker spheres, up to 15 chunks per link
+    the packing's resolution), per arm and arms-minor alike. panda_mbm (the MotionBenchMaker spheres, up to 15 chunks per link
     pair) reads its spheres from FABRAX_DATA."""
-    from fabrax.fabrics.terms import closest_link_pairs
+    from fabrax.fabrics.terms import _closest_minor, _search_tables, closest_link_pairs
 
     if robot_name == "panda_mbm":
         request.getfixturevalue("shared_data")  # skips without the data
@@ -180,6 +180,9 @@ def test_closest_link_pairs_is_the_brute_force_minimum(robot_name, panda, reques
     xs = jax.vmap(lambda q: sphere_centers(robot, q))(qs)  # (B, S, 3)
     bi, bj = jax.jit(jax.vmap(lambda x: closest_link_pairs(robot, x.T)))(xs)
     assert bi.shape == (64, len(groups))
+    # the arms-minor search (the self-collision term's under vmap) picks the very same pairs
+    mi, mj = jax.jit(lambda xt: _closest_minor(xt, *_search_tables(robot)))(jnp.moveaxis(xs, 0, -1).swapaxes(0, 1))
+    assert np.array_equal(np.asarray(mi).T, np.asarray(bi)) and np.array_equal(np.asarray(mj).T, np.asarray(bj))
     for x, ci, cj in zip(np.asarray(xs, np.float64), np.asarray(bi), np.asarray(bj)):
         gap = lambda a, b: np.linalg.norm(x[a] - x[b], axis=-1) - r[a] - r[b]  # noqa: E731
         for g, a, b in zip(groups, ci, cj):

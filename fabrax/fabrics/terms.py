@@ -16,6 +16,7 @@ Distance terms reduce all obstacles of a sphere to a 3x3 metric and a
 
 from __future__ import annotations
 
+import functools
 from typing import Any, Callable, NamedTuple
 
 import jax
@@ -404,8 +405,8 @@ def closest_link_pairs(robot: Robot, x: jax.Array) -> tuple[jax.Array, jax.Array
     each gap through two levels of indices, 7-9 % of a batched step. The work grows with the
     checked pairs alone: a dense search over all spheres of both links was 3x slower with the
     MotionBenchMaker sphere set, where XLA fused its minima into a gather that recomputed them per
-    link pair (docs/results.md). Under `jax.vmap` it runs with the arms as the minor axis
-    (`self_collision`).
+    link pair (docs/results.md). The self-collision term runs the same search arms-minor under
+    `jax.vmap` (`_closest_minor`).
     """
     if robot.pair_i.shape[0] == 0:
         return robot.pair_i, robot.pair_j
@@ -496,6 +497,7 @@ def arms_minor() -> bool:
     return jax.default_backend() == "cpu" if ARMS_MINOR is None else bool(ARMS_MINOR)
 
 
+@functools.lru_cache(maxsize=None)
 def _self_collision_fn(revolute: tuple, link: bool):
     """The self-collision contribution of one arm, f(p, x, xd, jdqd, axes, origins, jac, *tables), whose
     `jax.vmap` runs with the arms as the minor axis (`jax.custom_batching.custom_vmap`).
@@ -504,8 +506,8 @@ def _self_collision_fn(revolute: tuple, link: bool):
     search gathered single floats and the pullback's sums over the pairs ran as scalar code.
     With the arms minor (centres transposed once, `soa.batch_minor`) the search gathers whole rows
     of arms, the sums add rows, and the rows u_a come from the joint axes (`_pair_rows`) rather
-    than from Jacobian columns gathered per pair. A batched fabric step took 0.73-0.81 of the time
-    (64-256 arms, panda and panda_mbm, docs/results.md). One arm, and derivatives (a custom_vmap
+    than from Jacobian columns gathered per pair. A batched fabric step took 0.73-0.79 of the time
+    (64-256 arms, panda and panda_mbm; experiments/bench_arms_minor.py). One arm, and derivatives (a custom_vmap
     has no reverse mode), keep the per-arm code.
     """
 
