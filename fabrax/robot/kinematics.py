@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 
-from fabrax.soa import cross0, dot0, matvec
+from fabrax.soa import cross0, matvec
 
 
 class PointKinematics(NamedTuple):
@@ -77,9 +77,9 @@ def point_kinematics(robot, q, qd, frame, local) -> PointKinematics:
     the angular velocity of joint i's frame and od_i the velocity of its
     origin. That sum runs over the joint origins only; each point takes its
     frame's rigid-body motion (velocity, angular velocity and acceleration):
-    2-3 cross products per point instead of a sum over its joints (a batched
-    fabric step 0.86-0.97 of the time, docs/results.md). Agrees with nested
-    forward-mode autodiff of `points` (tested).
+    2-3 cross products per point instead of a sum over its joints (a fabric
+    step 0.82-0.89 of the time, 1-256 arms, docs/results.md). Agrees with
+    nested forward-mode autodiff of `points` (tested).
     """
     r, t = frame_transforms(robot, q)
     rev = jnp.asarray(robot.joint_revolute)  # (n,)
@@ -95,22 +95,27 @@ def point_kinematics(robot, q, qd, frame, local) -> PointKinematics:
     w = jnp.sum(jnp.where((anc & rev[:, None])[None], zq[:, :, None], 0.0), axis=1)  # (3, n) joint-frame angular velocities
     wz = cross0(w, z)  # (3, n): dz_i/dt
 
-    x = jnp.stack([dot0(jnp.moveaxis(r, 0, -1)[c][:, frame], local.T) for c in range(3)]) + t.T[:, frame]  # (3, N)
+    # Per frame f (index 0: the still base): rotation, origin, origin velocity od_f, angular
+    # velocity w_f, angular acceleration alpha_f and Jdot qd a_f of the origin (qdd = 0). A point
+    # p = t_f + R_f l on frame f moves with pd = od_f + w_f x (p - t_f) and has Jdot qd =
+    # a_f + alpha_f x (p - t_f) + w_f x (w_f x (p - t_f)): O(1) per point, the sums over joints
+    # run over the n origins only.
+    wzq = wz * qd
+    spun = cross0(wzq[:, :, None], o[:, None, :] - o[:, :, None]) + cross0(zq[:, :, None], od[:, None, :] - od[:, :, None])  # (3, n_i, n_f)
+    ao = jnp.sum(jnp.where(anc[None], jnp.where(rev[None, :, None], spun, wzq[:, :, None]), 0.0), axis=1)  # (3, n) a_f
+    al = jnp.sum(jnp.where((anc & rev[:, None])[None], wzq[:, :, None], 0.0), axis=1)  # (3, n) alpha_f
+    moving = jnp.concatenate([od, w, ao, al])  # (12, n)
+    per = jnp.concatenate([r.reshape(-1, 9).T, t.T, jnp.concatenate([jnp.zeros((12, 1), q.dtype), moving], axis=1)])  # (24, F)
+    # each point's frame by a product with a constant one-hot matrix (exact; HIGHEST keeps f32 on
+    # accelerators): XLA fused a gather with the arithmetic above and recomputed it per point
+    onehot = (jnp.arange(per.shape[1])[:, None] == frame[None, :]).astype(q.dtype)  # (F, N)
+    at = jnp.matmul(per, onehot, precision=jax.lax.Precision.HIGHEST)  # (24, N)
+    rel = jnp.stack([sum(at[3 * c + i] * local[:, i] for i in range(3)) for c in range(3)])  # (3, N): R_f l
+    x = rel + at[9:12]
+    vf, wf, af, alf = at[12:15], at[15:18], at[18:21], at[21:24]
     moves = robot.ancestors[frame].T[None]  # (1, n, N)
     arm = x[:, None, :] - o[:, :, None]  # (3, n, N)
     jac = jnp.where(moves, jnp.where(rev[None, :, None], cross0(z[:, :, None], arm), z[:, :, None]), 0.0)
-    # Per frame f (index 0: the still base): origin velocity od_f, angular velocity w_f, angular
-    # acceleration and Jdot qd of the origin (qdd = 0); a point p on frame f then moves with
-    # pd = od_f + w_f x (p - o_f) and Jdot qd = a_f + alpha_f x (p - o_f) + w_f x (w_f x (p - o_f)):
-    # O(1) per point instead of a sum over its n joints (the sums run over the n origins).
-    wzq = wz * qd
-    spun = cross0(wzq[:, :, None], o[:, None, :] - o[:, :, None]) + cross0(zq[:, :, None], od[:, None, :] - od[:, :, None])  # (3, n_i, n_f)
-    at_o = jnp.where(rev[None, :, None], spun, wzq[:, :, None])
-    ao = jnp.sum(jnp.where(anc[None], at_o, 0.0), axis=1)  # (3, n) Jdot qd of the joint origins
-    al = jnp.sum(jnp.where((anc & rev[:, None])[None], wzq[:, :, None], 0.0), axis=1)  # (3, n) angular accelerations
-    zero = jnp.zeros((3, 1), q.dtype)
-    of, vf, wf, af, alf = (jnp.concatenate([zero, a], axis=1)[:, frame] for a in (o, od, w, ao, al))  # (3, N) at each point's frame
-    rel = x - of
     spin = cross0(wf, rel)
     xd = vf + spin
     jdqd = af + cross0(alf, rel) + cross0(wf, spin)
