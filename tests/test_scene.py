@@ -114,6 +114,12 @@ def test_argmin_packed_and_nearest_distance(boxes):
     v3 = v.reshape(5, 8, 23)
     for axis in (0, 1, -1):
         assert np.array_equal(np.asarray(sc.sdf.argmin_packed(v3, axis=axis)), np.asarray(jnp.argmin(v3, axis)))
+        # the minimum read back from the key, within the packing's resolution; unrolled alike
+        for unroll in (False, True):
+            idx, low = sc.sdf.min_packed(v3, axis=axis, unroll=unroll)
+            assert np.array_equal(np.asarray(idx), np.asarray(jnp.argmin(v3, axis)))
+            true = np.asarray(v3.min(axis))
+            assert np.allclose(low, true, rtol=0, atol=(true + 2.0) * 2.0**-16)
     quats = rng.normal(size=(boxes - 1, 4))
     quats /= np.linalg.norm(quats, axis=1, keepdims=True)
     extra = [

@@ -30,7 +30,7 @@ from fabrax.fabrics.lagrangian import eom, eom_elementwise, hd2_geometry
 from fabrax.robot.kinematics import PointKinematics
 from fabrax.robot.robot import Robot
 from fabrax.scene import FAR, Scene, distance_kinematics
-from fabrax.scene.sdf import argmin_packed, nearest_distance
+from fabrax.scene.sdf import argmin_packed, min_packed, nearest_distance
 from fabrax.soa import batch_minor, cross0, dot0, matvec, matvec0
 
 
@@ -430,9 +430,9 @@ def _closest_one(x, radius, i, j, groups, groups_mask, link_groups, link_groups_
     rel = x[:, gi] - x[:, gj]
     gap = jnp.sqrt(dot0(rel, rel)) - radius[gi] - radius[gj]
     grouped = jnp.where(groups_mask, gap, FAR)
-    slot = argmin_packed(grouped)
+    slot, smallest = min_packed(grouped)
     best = jnp.take_along_axis(groups, slot[:, None], -1)[:, 0]
-    chunk_gap = jnp.where(link_groups_mask, jnp.take_along_axis(grouped, slot[:, None], -1)[:, 0][link_groups], FAR)
+    chunk_gap = jnp.where(link_groups_mask, smallest[link_groups], FAR)
     best = best[jnp.take_along_axis(link_groups, argmin_packed(chunk_gap)[:, None], -1)[:, 0]]
     return i[best], j[best]
 
@@ -444,10 +444,10 @@ def _closest_minor(xt, radius, i, j, groups, groups_mask, link_groups, link_grou
     rel = xt[:, gi] - xt[:, gj]  # (3, G, Q, B): rows of arms
     gap = jnp.sqrt(dot0(rel, rel)) - (radius[gi] + radius[gj])[..., None]
     grouped = jnp.where(groups_mask[..., None], gap, FAR)
-    slot = argmin_packed(grouped, axis=1)[:, None]  # (G, 1, B)
-    best = jnp.take_along_axis(jnp.broadcast_to(groups[..., None], grouped.shape), slot, 1)[:, 0]  # (G, B)
-    chunk_gap = jnp.where(link_groups_mask[..., None], jnp.take_along_axis(grouped, slot, 1)[:, 0][link_groups], FAR)  # (LP, C, B)
-    rows = argmin_packed(chunk_gap, axis=1)[:, None]
+    slot, smallest = min_packed(grouped, axis=1, unroll=True)  # (G, B) each: rows of arms, minima of slices
+    best = jnp.take_along_axis(jnp.broadcast_to(groups[..., None], grouped.shape), slot[:, None], 1)[:, 0]  # (G, B)
+    chunk_gap = jnp.where(link_groups_mask[..., None], smallest[link_groups], FAR)  # (LP, C, B)
+    rows = min_packed(chunk_gap, axis=1, unroll=True)[0][:, None]
     rows = jnp.take_along_axis(jnp.broadcast_to(link_groups[..., None], chunk_gap.shape), rows, 1)[:, 0]  # (LP, B)
     best = jnp.take_along_axis(best, rows, 0)
     return i[best], j[best]

@@ -12,6 +12,7 @@ its Jdot qd, all in closed form: the fabric evaluates them for every
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -19,7 +20,7 @@ import jax.numpy as jnp
 import jaxlie
 
 from fabrax.scene.primitives import Scene
-from fabrax.soa import dot0, sum0
+from fabrax.soa import dot0, sum0, written
 
 FAR = 1e3  # distance reported for masked (empty) slots
 LANES = 8  # float32 lanes of a 256-bit vector register (see `nearest_distance`)
@@ -144,6 +145,19 @@ def argmin_packed(values: jax.Array, offset: float = 2.0, axis: int = -1) -> jax
     reduction as scalar code). Values closer than ~2^-(23 - index bits)
     relative are ties.
     """
+    return min_packed(values, offset, axis)[0]
+
+
+def min_packed(values: jax.Array, offset: float = 2.0, axis: int = -1, unroll: bool = False) -> tuple[jax.Array, jax.Array]:
+    """`argmin_packed` and the smallest value itself, read back from the same packed key: exact up
+    to the index bits it lost (within ~2^-(23 - index bits) relative of values + offset), without a
+    gather of the values at the index (XLA fused such a gather with the arithmetic that made the
+    values, and recomputed it per gathered entry).
+
+    unroll: the minimum as a chain of elementwise minima of the slices along `axis`, written to
+    memory once. For a short axis that is not the minor one (the self-collision chunks with the
+    arms minor) this is one loop vectorised over the other axes; a reduction there ran over the
+    short axis innermost, and its consumers recomputed it (docs/results.md)."""
     axis = axis % values.ndim
     width = values.shape[axis]
     bits = max(1, int(width - 1).bit_length())
@@ -151,8 +165,13 @@ def argmin_packed(values: jax.Array, offset: float = 2.0, axis: int = -1) -> jax
         raise ValueError(f"too many entries ({width}) to pack an index into a float32 mantissa")
     raw = jax.lax.bitcast_convert_type(jnp.maximum(values + offset, 1e-30).astype(jnp.float32), jnp.int32)
     index = jnp.arange(width, dtype=jnp.int32).reshape((width,) + (1,) * (values.ndim - 1 - axis))
-    key = (raw & ~((1 << bits) - 1)) | index
-    return jnp.min(key, axis=axis) & ((1 << bits) - 1)
+    low = (1 << bits) - 1
+    keys = (raw & ~low) | index
+    if unroll:
+        key = written(functools.reduce(jnp.minimum, [jax.lax.index_in_dim(keys, k, axis, keepdims=False) for k in range(width)]))
+    else:
+        key = jnp.min(keys, axis=axis)
+    return key & low, jax.lax.bitcast_convert_type(key & ~low, jnp.float32).astype(values.dtype) - offset
 
 
 class NearestDistance(NamedTuple):
