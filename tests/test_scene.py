@@ -111,6 +111,8 @@ def test_argmin_packed_and_nearest_distance(boxes):
     rng = np.random.default_rng(4)
     v = jnp.asarray(rng.uniform(-0.5, 5.0, (40, 23)), jnp.float32)
     assert np.array_equal(np.asarray(sc.sdf.argmin_packed(v)), np.asarray(jnp.argmin(v, -1)))
+    idx, low = sc.sdf.min_packed(v, axis=0, unroll=True)  # longer than UNROLL_MAX: a plain reduction
+    assert np.array_equal(np.asarray(idx), np.asarray(jnp.argmin(v, 0))) and np.allclose(low, v.min(0), atol=1e-4)
     v3 = v.reshape(5, 8, 23)
     for axis in (0, 1, -1):
         assert np.array_equal(np.asarray(sc.sdf.argmin_packed(v3, axis=axis)), np.asarray(jnp.argmin(v3, axis)))

@@ -23,6 +23,7 @@ from fabrax.scene.primitives import Scene
 from fabrax.soa import dot0, sum0, written
 
 FAR = 1e3  # distance reported for masked (empty) slots
+UNROLL_MAX = 32  # longest axis `min_packed` unrolls (each entry is an op in the program)
 LANES = 8  # float32 lanes of a 256-bit vector register (see `nearest_distance`)
 _EPS2 = 1e-18  # keeps norms differentiable at zero
 
@@ -155,9 +156,10 @@ def min_packed(values: jax.Array, offset: float = 2.0, axis: int = -1, unroll: b
     values, and recomputed it per gathered entry).
 
     unroll: the minimum as a chain of elementwise minima of the slices along `axis`, written to
-    memory once. For a short axis that is not the minor one (the self-collision chunks with the
-    arms minor) this is one loop vectorised over the other axes; a reduction there ran over the
-    short axis innermost, and its consumers recomputed it (docs/results.md)."""
+    memory once, for axes of at most UNROLL_MAX entries (longer ones, e.g. point clouds, reduce as
+    usual). For a short axis that is not the minor one (the self-collision chunks with the arms
+    minor) this is one loop vectorised over the other axes; a reduction there ran over the short
+    axis innermost, and its consumers recomputed it (docs/results.md)."""
     axis = axis % values.ndim
     width = values.shape[axis]
     bits = max(1, int(width - 1).bit_length())
@@ -167,7 +169,7 @@ def min_packed(values: jax.Array, offset: float = 2.0, axis: int = -1, unroll: b
     index = jnp.arange(width, dtype=jnp.int32).reshape((width,) + (1,) * (values.ndim - 1 - axis))
     low = (1 << bits) - 1
     keys = (raw & ~low) | index
-    if unroll:
+    if unroll and width <= UNROLL_MAX:
         key = written(functools.reduce(jnp.minimum, [jax.lax.index_in_dim(keys, k, axis, keepdims=False) for k in range(width)]))
     else:
         key = jnp.min(keys, axis=axis)
