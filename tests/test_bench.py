@@ -5,6 +5,7 @@ import importlib.util
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
@@ -224,6 +225,9 @@ def test_bench_cli_end_to_end(tmp_path):
     data = json.loads((out / "results.json").read_text())
     rows = data["rows"]
     assert len(rows) == 2 and data["meta"]["config"]["method"]["name"] == "gf"
+    import fabrax
+
+    assert data["meta"]["source"]["path"] == str(Path(fabrax.__file__).resolve().parent)  # which code ran
     for row in rows:
         assert row["method"] == "gf" and row["class"] == "box" and row["valid_problem"]
         for key in ("success", "collision", "ee_length", "cspace_length", "ee_ldj", "cspace_ldj", "plan_time_s", "duration_s"):

@@ -194,6 +194,7 @@ def run_bench(cfg: dict, out: Path) -> list[dict]:
         "seed": cfg["seed"],
         "wall_s": time.perf_counter() - t0,
         "versions": {"python": platform.python_version(), "jax": jax.__version__, "fabrax": _version()},
+        "source": _source(),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
         "argv": sys.argv[1:],
     }
@@ -208,6 +209,22 @@ def _version() -> str:
     from importlib.metadata import version
 
     return version("fabrax")
+
+
+def _source() -> dict:
+    """Which fabrax ran: its package directory and git commit (None outside a checkout). Before/after
+    comparisons run an older commit from a worktree, and `python -m` puts the current directory
+    first on the import path, so the version number alone cannot tell them apart."""
+    import subprocess
+
+    import fabrax
+
+    root = Path(fabrax.__file__).resolve().parent
+    try:
+        commit = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        commit = ""
+    return {"path": str(root), "commit": commit or None}
 
 
 def main(argv: list[str] | None = None) -> int:
