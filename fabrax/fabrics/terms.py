@@ -400,7 +400,8 @@ def closest_link_pairs(robot: Robot, x: jax.Array) -> tuple[jax.Array, jax.Array
 
     The checked pairs' gaps, grouped into chunks of at most 16 pairs of one link pair
     (`robot.pair_groups`): the closest pair of each chunk, then the closest chunk of each link pair,
-    both by packed argmins (`scene.sdf.argmin_packed`). The gaps are computed in the chunks' layout
+    both by packed argmins (`scene.sdf.min_packed`, whose keys also give each chunk's minimum: a
+    gather of it made XLA recompute the gaps). The gaps are computed in the chunks' layout
     (sphere indices composed at trace time): gathering per-pair gaps into chunks made XLA recompute
     each gap through two levels of indices, 7-9 % of a batched step. The work grows with the
     checked pairs alone: a dense search over all spheres of both links was 3x slower with the
