@@ -122,6 +122,10 @@ def test_argmin_packed_and_nearest_distance(boxes):
             assert np.array_equal(np.asarray(idx), np.asarray(jnp.argmin(v3, axis)))
             true = np.asarray(v3.min(axis))
             assert np.allclose(low, true, rtol=0, atol=(true + 2.0) * 2.0**-16)
+    with jax.enable_x64(True):  # float64 values: the keys stay int32, the minimum float64
+        idx, low = sc.sdf.min_packed(jnp.asarray(v3, jnp.float64), axis=1, unroll=True)
+        assert idx.dtype == jnp.int32 and low.dtype == jnp.float64 and low.shape == (5, 23)
+        assert np.array_equal(np.asarray(idx), np.asarray(jnp.argmin(v3, 1)))
     quats = rng.normal(size=(boxes - 1, 4))
     quats /= np.linalg.norm(quats, axis=1, keepdims=True)
     extra = [
