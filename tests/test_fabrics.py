@@ -250,6 +250,40 @@ def test_resolutions_agree_where_they_coincide(fabric, panda):
         obstacle_repulsion(resolution="link")
 
 
+@pytest.mark.parametrize("resolution", ["scene", "primitive"])
+def test_sphere_padding_changes_nothing(fabric, panda, monkeypatch, resolution):
+    """The spheres' point set padded to a multiple of SPHERE_LANES (60 -> 64 here, with copies of
+    sphere 0) gives the fabric of the unpadded set: the padding is masked out of the obstacle term,
+    and self-collision never indexes it. The spheres are rotated so that sphere 0 is on the hand,
+    near the obstacle (a base sphere would contribute nothing even unmasked)."""
+    from fabrax.fabrics import terms as T
+
+    fab, params = fabric
+    n = panda.n_spheres
+    assert n % T.SPHERE_LANES  # the padding is exercised
+    roll = lambda a: jnp.roll(a, 1, axis=0)  # noqa: E731
+    robot = panda.replace(
+        sphere_frame=roll(panda.sphere_frame),
+        sphere_local=roll(panda.sphere_local),
+        sphere_radius=roll(panda.sphere_radius),
+        sphere_link=roll(panda.sphere_link),
+        pair_i=(panda.pair_i + 1) % n,
+        pair_j=(panda.pair_j + 1) % n,
+    )
+    terms = tuple(T.obstacle_repulsion(resolution=resolution) if t.name == "obstacles" else t for t in fab.terms)
+    fab = dataclasses.replace(fab, robot=robot, terms=terms)
+    with jax.enable_x64(True):
+        p = f64(fab.with_joint_goal(params, jnp.asarray(GOAL)))
+        scene, q, qd = f64((sc.from_dict(BAR), jnp.asarray(READY), jnp.asarray(V0)))
+        padded = fab.evaluate(p, scene, q, qd)
+        monkeypatch.setattr(T, "SPHERE_LANES", 1)
+        plain = fab.evaluate(p, scene, q, qd)
+    assert T._spheres(robot)[1].shape[0] == n
+    assert float(plain.terms.clearance) < 0.25  # the obstacle term is active
+    for a, b in ((padded.spec.M, plain.spec.M), (padded.spec.f, plain.spec.f), (padded.terms.clearance, plain.terms.clearance)):
+        assert np.allclose(a, b, rtol=1e-12, atol=1e-12)
+
+
 @pytest.mark.parametrize("resolution", ["link", "sphere"])
 def test_self_collision_batched_equals_per_arm(panda, resolution):
     """Under `jax.vmap` the self-collision term runs with the arms as the minor axis (its own batching
