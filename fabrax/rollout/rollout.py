@@ -247,7 +247,7 @@ def rollout_population(
     chunk: int = 25,
     patience: tuple[Distance, float, float] | None = None,
     via: Reached | None = None,
-    shrink: int = 4,
+    shrink: int = 2,
     shared: Params | None = None,
 ) -> Trajectory:
     """A population of command sequences (`params_seqs`, leading axes (P, m)) from one start in one scene.
@@ -259,7 +259,9 @@ def rollout_population(
     are returned as not reached, with their unfinished segments charged the
     whole budget. enough=None runs every arm to its end. patience, via: as `rollout_sequence`.
     shrink: once at most 1/shrink of the population still runs, those arms go on alone as a
-    smaller batch (`fabrax.shrink`; 1: never), so that finished arms cost no more steps.
+    smaller batch (`fabrax.shrink`; 1: never), so that finished arms cost no more steps. 2 (64, 32,
+    16 arms) took 0.81-0.87 of the CPU time of 4 (64, 16) for GFCS's first batch on MBM train
+    problems, with the same costs (docs/results.md).
     shared: the parameters common to every arm and segment, unbatched; params_seqs
     then holds only those that vary (as `rollout_sequence`).
     """
