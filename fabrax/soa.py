@@ -48,6 +48,7 @@ def written(x: jax.Array) -> jax.Array:
     heuristic of XLA's, not a guarantee: a gather consumer took such a sum into its own fusion,
     and a large one ran as a separate library fusion that cost more than it saved (docs/results.md,
     stop 32). Measure."""
+    x = jnp.asarray(x)
     return jnp.sum(jnp.stack([x, jnp.zeros_like(x)]), axis=0, dtype=x.dtype)  # dtype: ints stay int32 under x64
 
 
