@@ -37,6 +37,7 @@ from fabrax.soa import matvec, written
 Params = dict[str, Any]
 FORCING_KEYS = ("k_force", "b", "b_goal", "k_speed", "k_drag")  # parameters that inject or drain energy
 ENERGIZATIONS = ("dissipative", "conservative")
+SMALL_SET = 16  # point sets up to this size get their Jacobians written apart (`Fabric.evaluate`)
 
 
 @struct.dataclass
@@ -96,10 +97,17 @@ class Fabric:
                 sl = slice(start, start + f.shape[0])
                 # each set's share written once: sliced views were fused into every consumer, which
                 # recomputed the points' kinematics there with strided reads (e.g. the end-effector's
-                # 3 points in the energization's fusion); a step 0.90-0.91 of the time (docs/results.md)
-                view = (allk.x[:, sl], allk.jac[..., sl], allk.xd[:, sl], allk.jdqd[:, sl])
-                x, jac, xd, jdqd = (written(a) for a in view)
-                kin[key] = allk._replace(x=x, jac=jac, xd=xd, jdqd=jdqd)
+                # 3 points in the energization's fusion). The Jacobians of a large set (the spheres)
+                # stay a view: written, they went through a library fusion that cost more than it
+                # saved. Writing the sets: a step 0.86-0.90 of the time; the spheres' Jacobians a
+                # view again: 0.91-0.94 of that (docs/results.md).
+                jac = allk.jac[..., sl]
+                kin[key] = allk._replace(
+                    x=written(allk.x[:, sl]),
+                    jac=written(jac) if f.shape[0] <= SMALL_SET else jac,
+                    xd=written(allk.xd[:, sl]),
+                    jdqd=written(allk.jdqd[:, sl]),
+                )
                 start += f.shape[0]
         total = Contribution.zeros(q.shape[0], q.dtype)
         for t in self.terms:
