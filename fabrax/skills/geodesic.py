@@ -41,7 +41,7 @@ eigenvalue below -`tol` times its largest, so it does not stop at a saddle.
 
 A batch of start/goal pairs runs in one loop. Once at most 1/`shrink` of the
 pairs still run, those go on alone as a smaller batch (sizes B, B / shrink,
-..., down to 8), so a few slow pairs do not make the batch pay for their
+..., down to 16, `fabrax.shrink.SMALLEST`), so a few slow pairs do not make the batch pay for their
 iterations.
 
 Gradient descent from the straight line stalls where the line crosses a hole in
