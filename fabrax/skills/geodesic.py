@@ -41,8 +41,8 @@ eigenvalue below -`tol` times its largest, so it does not stop at a saddle.
 
 A batch of start/goal pairs runs in one loop. Once at most 1/`shrink` of the
 pairs still run, those go on alone as a smaller batch (sizes B, B / shrink,
-..., down to 16, `fabrax.shrink.SMALLEST`), so a few slow pairs do not make the batch pay for their
-iterations.
+..., down to `fabrax.shrink.SMALLEST` = 16), so a few slow pairs do not make
+the batch pay for their iterations.
 
 Gradient descent from the straight line stalls where the line crosses a hole in
 the data: the RBF variance is flat far from the codes, so only the walls around
