@@ -1,14 +1,15 @@
 """Batch axes over all local devices with `jax.sharding`: one mesh, one axis name.
 
 Every batched solver (arm rollouts, GFCS populations, geodesic batches, skill
-execution) marks its batch axis inside its jitted function, with `constrain` or
-with `batched` (which also pads the batch to a multiple of the device count);
-GSPMD then splits the vmapped computation over the devices of `mesh()`, and
-nothing else changes: each arm's maths is the one a single device runs. A multi-GPU node or a TPU
-slice scales without code changes. On a CPU, XLA shows one device unless told
-otherwise: set FABRAX_CPU_DEVICES=<cores> before importing fabrax (it becomes
-`--xla_force_host_platform_device_count`) to run one shard per core. The RL guide's
-env batch is split over the same local devices by brax's own `pmap`.
+execution) runs its batch axis split over the devices of `mesh()`: `per_device`
+runs a batched function on each device's share with `jax.shard_map`, `batched`
+also pads the batch to a multiple of the device count, and `constrain` marks a
+batch axis for GSPMD where the whole batch takes part (a population's stop
+test). Each arm's maths is the one a single device runs. A multi-GPU node or a
+TPU slice scales without code changes. On a CPU, XLA shows one device unless
+told otherwise: set FABRAX_CPU_DEVICES=<cores> before importing fabrax (it
+becomes `--xla_force_host_platform_device_count`) to run one shard per core.
+The RL guide's env batch is split over the same local devices by brax's own `pmap`.
 """
 
 from __future__ import annotations
@@ -75,27 +76,44 @@ def unpad(tree, n: int):
     return jax.tree.map(lambda x: x[:n], tree)
 
 
+def per_device(fn, m: Mesh | None = None):
+    """`fn` (a batch in, a batch out: every leaf of its arguments and results has the batch as
+    leading axis) run by each device on its own share (`jax.shard_map`). Nothing in `fn` crosses
+    devices: a batch left to GSPMD got cross-device collectives inside the fabric step (an all-reduce
+    for every round of a vmapped `while_loop`'s test, all-gathers around the self-collision search's
+    gathers), and two CPU devices stepped 128 arms at 0.4-0.6 of one device's rate on 64. A batch
+    whose size does not divide by the device count runs whole, left to GSPMD (`batched` pads it)."""
+
+    def run(*args):
+        mm = m or mesh()
+        n = mm.devices.size
+        if n == 1 or not all(_shardable(x, n) for x in jax.tree.leaves(args)):
+            return fn(*args)
+        return jax.shard_map(fn, mesh=mm, in_specs=PartitionSpec(AXIS), out_specs=PartitionSpec(AXIS), check_vma=False)(*args)
+
+    return run
+
+
 def batched(fn, sub_batch: int | None = None):
     """`fn` (a batch in, a batch out, along the leading axis) with the batch split over the devices:
-    padded to a multiple of their count (`pad`), constrained, cut back. With `sub_batch`, a device's
-    share larger than that runs as consecutive sub-batches of `sub_batch` arms (`lax.map`), with no
-    data moving between devices.
+    padded to a multiple of their count (`pad`), run on each device's share (`per_device`), cut
+    back. With `sub_batch`, a device's share larger than that runs as consecutive sub-batches of
+    `sub_batch` arms (`lax.map`).
 
     Large batches are memory-bound on a CPU: a sub-batch keeps each kernel's working set in cache
     (1024 fabric arms: 1.36x the arm-steps/s, experiments/bench_fabric_step.py). Results are `fn`'s;
     a share that does not divide into sub-batches runs whole."""
 
-    def run(*args):
-        d = jax.local_device_count()
-        args, n = pad(args, d)
-        share = jax.tree.leaves(args)[0].shape[0] // d
+    def local(*args):  # one device's share; sub-batch i takes its arms [i c, (i + 1) c)
+        share = jax.tree.leaves(args)[0].shape[0]
         if sub_batch is None or share <= sub_batch or share % sub_batch:
-            return unpad(fn(*constrain(args)), n)
+            return fn(*args)
         k, c = share // sub_batch, sub_batch
-        # sub-batch i takes arms [i c, (i + 1) c) of every device's share
-        split = lambda x: x.reshape((d, k, c) + x.shape[1:]).swapaxes(0, 1).reshape((k, d * c) + x.shape[1:])  # noqa: E731
-        join = lambda x: x.reshape((k, d, c) + x.shape[2:]).swapaxes(0, 1).reshape((d * k * c,) + x.shape[2:])  # noqa: E731
-        out = jax.lax.map(lambda sub: fn(*constrain(sub)), jax.tree.map(split, constrain(args)))
-        return unpad(jax.tree.map(join, out), n)
+        out = jax.lax.map(lambda sub: fn(*sub), jax.tree.map(lambda x: x.reshape((k, c) + x.shape[1:]), args))
+        return jax.tree.map(lambda x: x.reshape((k * c,) + x.shape[2:]), out)
+
+    def run(*args):
+        args, n = pad(args, jax.local_device_count())
+        return unpad(per_device(local)(*args), n)
 
     return run

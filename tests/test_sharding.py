@@ -3,7 +3,8 @@
 The same script runs in two fresh processes, with one and with two XLA host
 devices (FABRAX_CPU_DEVICES), on a rollout batch (also run as sub-batches of one
 arm), a GFCS-style population, a GFCS solve, a geodesic batch and a batch of 5 padded to 6;
-the two-device run must actually split them.
+the two-device run must actually split them, and its rollout must run without cross-device
+collectives (`sharding.per_device`).
 """
 
 import json
@@ -34,7 +35,10 @@ SCRIPT = textwrap.dedent(
     fab, params = config.load_fabric(robot)
     rng = np.random.default_rng(3)
     problems = random_problems(robot, [flying_cuboids(rng) for _ in range(4)], seed=3)
-    tr = jax.jit(lambda b: reach(fab, params, b, "joint", dt=0.01, steps=60))(batch(problems))
+    reach_fn = jax.jit(lambda b: reach(fab, params, b, "joint", dt=0.01, steps=60))
+    tr = reach_fn(batch(problems))
+    hlo = reach_fn.lower(batch(problems)).compile().as_text()
+    collectives = sum(hlo.count(op + "(") for op in ("all-reduce", "all-gather", "all-to-all", "collective-permute"))
     sub = jax.jit(lambda b: reach(fab, params, b, "joint", dt=0.01, steps=60, sub_batch=1))(batch(problems))  # sub-batches of one
 
     goals = jnp.asarray(np.random.default_rng(4).uniform(-0.5, 0.5, (4, 7)) + np.asarray(problems[0].start_q), jnp.float32)
@@ -51,7 +55,7 @@ SCRIPT = textwrap.dedent(
     gfcs = solve(fab, params, GFCOP.from_problem(problems[0]), jax.random.PRNGKey(0), GFCSConfig(population=4, batches=2, t_max=0.6))
 
     print(json.dumps({
-        "devices": jax.local_device_count(),
+        "devices": jax.local_device_count(), "collectives": collectives,
         "split": [not x.sharding.is_fully_replicated for x in (tr.q, sub.q, pop.q, geo.energy)],
         "odd": np.asarray(odd).tolist(),
         "reach_q": np.asarray(tr.q).tolist(), "reach_len": np.asarray(tr.length).tolist(), "sub_q": np.asarray(sub.q).tolist(),
@@ -74,6 +78,7 @@ def test_two_devices_split_the_batches_and_match_one_device():
     one, two = _run(1), _run(2)
     assert one["devices"] == 1 and two["devices"] == 2
     assert one["split"] == [False] * 4 and two["split"] == [True] * 4
+    assert two["collectives"] == 0  # each device steps its own arms: nothing crosses devices inside the rollout
     assert one["reach_len"] == two["reach_len"]
     for key in ("reach_q", "pop_q", "geo_energy", "sub_q", "odd", "gfcs_first"):  # GFCS: its first batch's best cost
         assert np.allclose(np.asarray(one[key]), np.asarray(two[key]), atol=1e-5), key

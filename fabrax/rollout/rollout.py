@@ -283,11 +283,11 @@ def rollout_population(
         c = st[1][1]
         return (c.reached & (c.clearance >= 0.0)).astype(jnp.int32)
 
-    def advance(st):
-        return st[0], sharding.constrain(jax.vmap(body)(*st))
+    def advance(st):  # each device steps its share; the stop tests above count the whole population
+        return st[0], sharding.per_device(jax.vmap(body))(*st)
 
     params_seqs = sharding.constrain(params_seqs)  # the population over the local devices
-    state = (params_seqs, sharding.constrain(jax.vmap(init)(params_seqs)))
+    state = (params_seqs, sharding.per_device(jax.vmap(init))(params_seqs))
     state = shrink_loop(advance, running, state, shrink, count=clean, limit=enough)
     return jax.vmap(finish)(state[1])
 
