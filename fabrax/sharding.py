@@ -82,7 +82,7 @@ def per_device(fn, m: Mesh | None = None):
     devices: a batch left to GSPMD got cross-device collectives inside the fabric step (an all-reduce
     for every round of a vmapped `while_loop`'s test, all-gathers around the self-collision search's
     gathers), and two CPU devices together stepped 1,024 arms at 68,000-74,000 arm-steps/s where one
-    core alone stepped 64 at 105,000-123,000 (now 202,000-229,000; docs/results.md). A batch whose
+    core alone stepped 64 at 105,000-123,000 (now 202,000-238,000; docs/results.md). A batch whose
     size does not divide by the device count runs whole, left to GSPMD (`batched` pads it)."""
 
     def run(*args):
