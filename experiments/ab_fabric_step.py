@@ -1,9 +1,9 @@
 """Interleaved A/B of the fabric step: this checkout's fabrax against an older commit, in one process.
 
 The older commit's `fabrax/` and `configs/` are extracted with `git archive` into a temporary folder
-and imported as the package `fabrax_old`. Both steps are compiled for the same arms and scene (the
-fabric-step bench's bookshelf), then called alternately, old-new, new-old, ...; each call's CPU time
-is taken, and the figure is the median of the new/old ratios of the pairs. On a shared VM whose
+and imported as the package `fabrax_old`. Both steps are compiled for the same arms, scene, start
+and goal (the fabric-step bench's), then called alternately, old-new, new-old, ...; each call's CPU
+time is taken, and the figure is the median of the new/old ratios of the pairs. On a shared VM whose
 speed drifts by 20-50 % within an hour this resolves changes of a few percent, where separate runs
 do not (docs/results.md). Pin it to one core for steady figures:
 
@@ -25,8 +25,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-GOAL = [0.0, 0.5, 0.0, -1.6, 0.0, 3.1, 0.785]
-READY = [0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785]
 
 
 def extract(commit: str, into: Path) -> None:
@@ -58,7 +56,7 @@ def main() -> None:
     import fabrax_old.scene
     import jax
     import jax.numpy as jnp
-    from bench_fabric_step import bookshelf_scene
+    from bench_fabric_step import GOAL, READY, bookshelf_scene
     from fabrax_old import config as config_old
 
     import fabrax.rollout

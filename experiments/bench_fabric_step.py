@@ -40,6 +40,9 @@ from fabrax import scene as sc
 from fabrax.problems.generators import shelf
 from fabrax.rollout import integrate
 
+READY = [0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785]  # the arms start near this posture
+GOAL = [0.0, 0.5, 0.0, -1.6, 0.0, 3.1, 0.785]  # and are attracted to this joint goal
+
 
 def bookshelf_scene() -> dict:
     """Two shelves side by side plus clutter: 20 cuboids."""
@@ -65,8 +68,7 @@ def main() -> None:
     robot = config.load_robot(args.robot)
     fabric, params = config.load_fabric(robot)
     scene = sc.from_dict(bookshelf_scene())
-    ready = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
-    goal = jnp.asarray([0.0, 0.5, 0.0, -1.6, 0.0, 3.1, 0.785])
+    ready, goal = np.asarray(READY), jnp.asarray(GOAL)
     p = fabric.with_joint_goal(params, goal)
     dt = 0.01
 

@@ -100,7 +100,7 @@ class Fabric:
                 # 3 points in the energization's fusion). The Jacobians of a large set (the spheres)
                 # stay a view: written, they went through a library fusion that cost more than it
                 # saved. Writing the sets: a step 0.86-0.90 of the time; the spheres' Jacobians a
-                # view again: 0.91-0.94 of that (docs/results.md).
+                # view again: 0.91-0.99 of that (docs/results.md).
                 jac = allk.jac[..., sl]
                 kin[key] = allk._replace(
                     x=written(allk.x[:, sl]),

@@ -260,8 +260,8 @@ def rollout_population(
     whole budget. enough=None runs every arm to its end. patience, via: as `rollout_sequence`.
     shrink: once at most 1/shrink of the population still runs, those arms go on alone as a
     smaller batch (`fabrax.shrink`; 1: never), so that finished arms cost no more steps. 2 (64, 32,
-    16 arms) took 0.81-0.87 of the CPU time of 4 (64, 16) for GFCS's first batch on MBM train
-    problems, with the same costs (docs/results.md).
+    16 arms) took 0.814 of the CPU time of 4 (64, 16) for GFCS's first batch on MBM train problems
+    (0.82-0.87 in three runs that also went on to 8), with the same costs (docs/results.md).
     shared: the parameters common to every arm and segment, unbatched; params_seqs
     then holds only those that vary (as `rollout_sequence`).
     """
