@@ -55,6 +55,56 @@ def bookshelf_scene() -> dict:
     return {"obstacles": obs[:20]}
 
 
+def setup(robot_name: str = "panda"):
+    """(robot, fabric, params aimed at GOAL, scene) of the bench."""
+    robot = config.load_robot(robot_name)
+    fabric, params = config.load_fabric(robot)
+    return robot, fabric, fabric.with_joint_goal(params, jnp.asarray(GOAL)), sc.from_dict(bookshelf_scene())
+
+
+def measure(fabric, p, scene, b: int, steps: int = 200, repeats: int = 3, chunk: int = 0, dt: float = 0.01) -> dict:
+    """One row: `b` arms near READY stepped `steps` times in a scan (vmapped, split over the local
+    devices, a device's share in sub-batches of `chunk` arms), best of `repeats` after compiling."""
+
+    def run(q0, qd0):
+        def body(c, _):
+            q, qd, _, _ = integrate(fabric, p, scene, c[0], c[1], dt)
+            return (q, qd), None
+
+        return jax.lax.scan(body, (q0, qd0), None, length=steps)[0]
+
+    rng = np.random.default_rng(b)
+    q0 = jnp.asarray(np.asarray(READY) + rng.normal(scale=0.05, size=(b, 7)), jnp.float32)
+    qd0 = jnp.zeros((b, 7), jnp.float32)
+    share = b // jax.local_device_count() if b % jax.local_device_count() == 0 else b
+    chunk = chunk if 0 < chunk < share and share % chunk == 0 else share
+    fn = jax.jit(sharding.batched(jax.vmap(run), chunk))
+    t0 = time.perf_counter()
+    compiled = fn.lower(q0, qd0).compile()
+    compile_s = time.perf_counter() - t0
+    cost = compiled.cost_analysis()
+    # one device's program, whose loops' bodies count once: one step of one sub-batch
+    flops = (cost[0] if isinstance(cost, list) else cost).get("flops", float("nan")) / chunk
+    jax.block_until_ready(compiled(q0, qd0))
+    best, best_cpu = np.inf, np.inf
+    for _ in range(repeats):
+        t0, c0 = time.perf_counter(), time.process_time()
+        jax.block_until_ready(compiled(q0, qd0))
+        best, best_cpu = min(best, time.perf_counter() - t0), min(best_cpu, time.process_time() - c0)
+    return {
+        "batch": b,
+        "devices": jax.local_device_count(),
+        "chunk": chunk,
+        "arm_steps_per_s": b * steps / best,
+        "us_per_step": best / steps * 1e6,
+        "us_per_arm_step": best / steps / b * 1e6,
+        "cpu_us_per_arm_step": best_cpu / steps / b * 1e6,
+        "flops_per_arm_step": flops,  # XLA's count (one round of the limiter's loop)
+        "gflops_per_s": flops * b * steps / best / 1e9,
+        "compile_s": compile_s,
+    }
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="bench_out/fabric_step")
@@ -65,54 +115,11 @@ def main() -> None:
     ap.add_argument("--chunk", type=int, default=0, help="arms per sub-batch on each device (0: the whole batch at once)")
     args = ap.parse_args()
 
-    robot = config.load_robot(args.robot)
-    fabric, params = config.load_fabric(robot)
-    scene = sc.from_dict(bookshelf_scene())
-    ready, goal = np.asarray(READY), jnp.asarray(GOAL)
-    p = fabric.with_joint_goal(params, goal)
+    robot, fabric, p, scene = setup(args.robot)
     dt = 0.01
-
-    def run(q0, qd0):
-        def body(c, _):
-            q, qd, _, _ = integrate(fabric, p, scene, c[0], c[1], dt)
-            return (q, qd), None
-
-        return jax.lax.scan(body, (q0, qd0), None, length=args.steps)[0]
-
     rows = []
     for b in [int(x) for x in args.batches.split(",")]:
-        rng = np.random.default_rng(b)
-        q0 = jnp.asarray(ready + rng.normal(scale=0.05, size=(b, 7)), jnp.float32)
-        qd0 = jnp.zeros((b, 7), jnp.float32)
-        share = b // jax.local_device_count() if b % jax.local_device_count() == 0 else b
-        chunk = args.chunk if 0 < args.chunk < share and share % args.chunk == 0 else share
-        fn = jax.jit(sharding.batched(jax.vmap(run), chunk))
-        t0 = time.perf_counter()
-        compiled = fn.lower(q0, qd0).compile()
-        compile_s = time.perf_counter() - t0
-        cost = compiled.cost_analysis()
-        # one device's program, whose loops' bodies count once: one step of one sub-batch
-        flops = (cost[0] if isinstance(cost, list) else cost).get("flops", float("nan")) / chunk
-        jax.block_until_ready(compiled(q0, qd0))
-        best, best_cpu = np.inf, np.inf
-        for _ in range(args.repeats):
-            t0, c0 = time.perf_counter(), time.process_time()
-            jax.block_until_ready(compiled(q0, qd0))
-            best, best_cpu = min(best, time.perf_counter() - t0), min(best_cpu, time.process_time() - c0)
-        rows.append(
-            {
-                "batch": b,
-                "devices": jax.local_device_count(),
-                "chunk": chunk,
-                "arm_steps_per_s": b * args.steps / best,
-                "us_per_step": best / args.steps * 1e6,
-                "us_per_arm_step": best / args.steps / b * 1e6,
-                "cpu_us_per_arm_step": best_cpu / args.steps / b * 1e6,
-                "flops_per_arm_step": flops,  # XLA's count (one round of the limiter's loop)
-                "gflops_per_s": flops * b * args.steps / best / 1e9,
-                "compile_s": compile_s,
-            }
-        )
+        rows.append(measure(fabric, p, scene, b, args.steps, args.repeats, args.chunk, dt))
         print(json.dumps(rows[-1]))
 
     meta = {

@@ -39,6 +39,34 @@ def timed(fn, *args, repeats: int):
     return compile_s, best
 
 
+def generated_env(backend: str = "kinematic", substeps: int = 30, scenes: int = 8):
+    """The bench's env: a pool of `scenes` generated scenes of each kind (no data needed)."""
+    pool = {"cuboid_forest": scenes, "shelves": scenes, "flying_cuboids": scenes}
+    return make_env({"backend": backend, "substeps": substeps, "scenes": {"generated": pool}})
+
+
+def step_rate(env, b: int, steps: int = 4, repeats: int = 2) -> dict:
+    """Env steps per second of `b` envs (a scan of `steps` vmapped steps with random actions, best of
+    `repeats` after a warm-up call) and the compile time (the warm-up less one timed call)."""
+    keys = jax.random.split(jax.random.PRNGKey(0), b)
+    t = time.perf_counter()
+    state = jax.block_until_ready(jax.jit(jax.vmap(env.reset))(keys))
+    reset_s = time.perf_counter() - t
+
+    @jax.jit
+    def rollout(state, key):
+        def body(s, k):
+            a = jax.random.uniform(k, (b, env.action_size), minval=-1.0, maxval=1.0)
+            s = jax.vmap(env.step)(s, a)
+            return s, s.reward
+
+        return jax.lax.scan(body, state, jax.random.split(key, steps))[1]
+
+    compile_s, step_s = timed(rollout, state, jax.random.PRNGKey(1), repeats=repeats)
+    per_step = step_s / steps
+    return {"envs": b, "env_steps_per_s": b / per_step, "ms_per_step": 1e3 * per_step, "compile_s": compile_s - step_s, "reset_s": reset_s}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="bench_out/rl_env")
@@ -51,25 +79,12 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=128, help="episodes of each scripted policy for the baseline rows (0: skip)")
     args = ap.parse_args()
 
-    n = args.scenes
-    env = make_env(
-        {"backend": args.backend, "substeps": args.substeps, "scenes": {"generated": {"cuboid_forest": n, "shelves": n, "flying_cuboids": n}}}
-    )
+    env = generated_env(args.backend, args.substeps, args.scenes)
     cfg = env.cfg
     rows = []
     for b in [int(x) for x in args.batches.split(",")]:
-        keys = jax.random.split(jax.random.PRNGKey(0), b)
-        state = jax.jit(jax.vmap(env.reset))(keys)
-
-        @jax.jit
-        def rollout(state, key):
-            def body(s, k):
-                a = jax.random.uniform(k, (b, env.action_size), minval=-1.0, maxval=1.0)
-                s = jax.vmap(env.step)(s, a)
-                return s, s.reward
-
-            return jax.lax.scan(body, state, jax.random.split(key, args.steps))[1]
-
+        row = step_rate(env, b, args.steps, args.repeats)
+        state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), b))
         ep = state.pipeline_state
         a0 = jnp.zeros((b, env.action_size))
         params, _ = jax.vmap(env.targets, in_axes=(0, 0, None))(ep, a0, jnp.ones((), jnp.int32))
@@ -78,22 +93,10 @@ def main() -> None:
         qs = substeps(params, ep)
         checker = jax.jit(jax.vmap(lambda s, q: state_clearances(env.robot, s, q)))
         observe = jax.jit(jax.vmap(env.observe))
-        compile_s, step_s = timed(rollout, state, jax.random.PRNGKey(1), repeats=args.repeats)
         _, fabric_s = timed(substeps, params, ep, repeats=args.repeats)
         _, check_s = timed(checker, ep.scene, qs, repeats=args.repeats)
         _, obs_s = timed(observe, ep, state.obs["bps"], repeats=args.repeats)
-        per_step = step_s / args.steps
-        rows.append(
-            {
-                "envs": b,
-                "env_steps_per_s": b / per_step,
-                "ms_per_step": 1e3 * per_step,
-                "compile_s": compile_s - step_s,
-                "fabric_ms": 1e3 * fabric_s,
-                "checker_ms": 1e3 * check_s,
-                "observe_ms": 1e3 * obs_s,
-            }
-        )
+        rows.append({**row, "fabric_ms": 1e3 * fabric_s, "checker_ms": 1e3 * check_s, "observe_ms": 1e3 * obs_s})
         print(json.dumps(rows[-1]), flush=True)
 
     baselines = []

@@ -51,12 +51,12 @@ def test_the_tiny_preset_is_the_tests_settings():
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     """A tiny training run: (run directory, initial parameters, trained parameters)."""
-    from brax.training.agents.ppo import train as ppo
-
+    from fabrax.compat import brax_ppo
     from fabrax.rl.env import make_env
     from fabrax.rl.networks import make_guide_networks
     from fabrax.rl.wrappers import wrap_for_training
 
+    ppo = brax_ppo()
     run_dir = tmp_path_factory.mktemp("rl") / "run"
     env = make_env(TINY["env"])
     factory = lambda *a, **k: make_guide_networks(*a, **k, variant="mlp", hidden=(32, 32))  # noqa: E731

@@ -107,7 +107,10 @@ def make_method(cfg: dict, robot):
                 learned = dict(zip(("learner", "selfsup", "encoding"), load_run(m["run"], robot, gfcs_cfg.n_commands)))
             except (FileNotFoundError, ValueError) as e:
                 raise SystemExit(f"fabrax bench: {e}") from None
-        return GFCSMethod(fabric, params, gfcs_cfg, m["name"], tuple(m["report"]), cfg["seed"], **learned)
+        batch = m.get("batch_size", 1)
+        if not isinstance(batch, int) or isinstance(batch, bool) or batch < 1:
+            raise SystemExit(f"fabrax bench: method.batch_size must be a positive integer, got {batch!r}")
+        return GFCSMethod(fabric, params, gfcs_cfg, m["name"], tuple(m["report"]), cfg["seed"], **learned, batch_size=batch)
     if kind == "ompl":
         return OMPLMethod(dt=cfg["dt"], **m)
     if kind == "vamp":

@@ -191,7 +191,10 @@ def plot_curves(run_dir: Path) -> Path | None:
 def train(settings: dict[str, Any], run_dir: str | Path, resume: bool = False, data_dir=None):
     """Train (or, with `resume`, continue) a guide; returns (make_policy, params, final metrics)."""
     from brax.training.agents.ppo import checkpoint as ppo_checkpoint
-    from brax.training.agents.ppo import train as ppo
+
+    from fabrax.compat import brax_ppo
+
+    ppo = brax_ppo()
 
     settings = normalise(settings)
     run_dir = Path(run_dir).resolve()  # orbax takes absolute paths only

@@ -50,6 +50,17 @@ class GFCOP:
         scene = p.scene.rounded() if capacity is None else p.scene.pad(**capacity)
         return cls(f32(p.start_q), f32(qd), f32(p.goal_q), scene)
 
+    @classmethod
+    def stack(cls, problems: "list[GFCOP]") -> "GFCOP":
+        """K problems as one with a leading axis of K (`solve_batch`), their scenes padded to the
+        largest capacity of each kind (`fabrax.scene.stack`)."""
+        from fabrax.scene import stack
+
+        if not problems:
+            raise ValueError("GFCOP.stack: no problems")
+        arrays = [jnp.stack([getattr(p, f) for p in problems]) for f in ("start_q", "start_qd", "goal_q")]
+        return cls(*arrays, stack([p.scene for p in problems]))
+
 
 MIN_PROGRESS = 0.01  # rad: what counts as getting closer to a command (see `population_cost`'s patience)
 

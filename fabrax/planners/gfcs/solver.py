@@ -93,16 +93,19 @@ def _evaluate(fabric, params: Params, problem: GFCOP, pop: jax.Array, cfg: GFCSC
 class BatchFns:
     """The batch's functions, each a `Compiled`: the population rollout, compiled once per problem
     shape (the scene's capacity), and CMA-ES's, once per solver. One jitted batch (ask, roll out,
-    tell) compiled the rollout twice, for the first batch and the later ones."""
+    tell) compiled the rollout twice, for the first batch and the later ones. With `problems`, every
+    function takes a leading axis of problems solved together (`solve_batch`)."""
 
     evaluate: Compiled  # (problem, pop) -> (costs, best candidate's trajectory)
     start: Compiled  # (samples, costs, key) -> CMA-ES state, its mean at the samples' weighted elite
     ask: Compiled  # (state, key) -> (pop, state)
     tell: Compiled  # (pop, costs, state, key) -> state
+    problems: bool = False  # the functions are vmapped over a leading axis of problems
 
 
-def make_step(fabric, params: Params, cfg: GFCSConfig) -> BatchFns:
-    """The batch functions; build them once and pass them to `solve` for many problems."""
+def make_step(fabric, params: Params, cfg: GFCSConfig, problems: bool = False) -> BatchFns:
+    """The batch functions; build them once and pass them to `solve` (or, with `problems=True`, to
+    `solve_batch`) for many problems."""
     dof = fabric.robot.dof
     es = CMA_ES(population_size=cfg.population, solution=jnp.zeros((cfg.n_commands, dof)))
     es_params = es.default_params.replace(std_init=cfg.std_init)
@@ -112,12 +115,20 @@ def make_step(fabric, params: Params, cfg: GFCSConfig) -> BatchFns:
         state = es.init(k_init, jnp.mean(samples, axis=0), es_params)
         return es.tell(k_tell, samples, costs, state, es_params)[0]
 
-    return BatchFns(
-        evaluate=Compiled(jax.jit(lambda problem, pop: _evaluate(fabric, params, problem, pop, cfg))),
-        start=Compiled(jax.jit(start)),
-        ask=Compiled(jax.jit(lambda state, key: es.ask(key, state, es_params))),
-        tell=Compiled(jax.jit(lambda pop, costs, state, key: es.tell(key, pop, costs, state, es_params)[0])),
-    )
+    fns = {
+        "evaluate": lambda problem, pop: _evaluate(fabric, params, problem, pop, cfg),
+        "start": start,
+        "ask": lambda state, key: es.ask(key, state, es_params),
+        "tell": lambda pop, costs, state, key: es.tell(key, pop, costs, state, es_params)[0],
+    }
+    wrap = jax.vmap if problems else (lambda f: f)
+    return BatchFns(**{k: Compiled(jax.jit(wrap(f))) for k, f in fns.items()}, problems=problems)
+
+
+def _check_samples(samples, shape: tuple) -> jax.Array:
+    if samples.shape != shape:
+        raise ValueError(f"samples: expected shape {shape}, got {samples.shape}")
+    return jnp.asarray(samples)
 
 
 def solve(fabric, params: Params, problem: GFCOP, key: jax.Array, cfg: GFCSConfig = GFCSConfig(), samples=None, steps_fns=None) -> GFCSResult:
@@ -125,14 +136,47 @@ def solve(fabric, params: Params, problem: GFCOP, key: jax.Array, cfg: GFCSConfi
     unconstrained space (default: uniform). steps_fns: reuse `make_step(...)` across problems."""
     robot = fabric.robot
     fns = steps_fns or make_step(fabric, params, cfg)
+    if fns.problems:
+        raise ValueError("solve: steps_fns were made for batches of problems (make_step(problems=True)); use solve_batch")
     key, k_samp = jax.random.split(key)
     if samples is None:
         samples = uniform_sampler(k_samp, robot, cfg.population, cfg.n_commands)
-    if samples.shape != (cfg.population, cfg.n_commands, robot.dof):
-        raise ValueError(f"samples: expected shape {(cfg.population, cfg.n_commands, robot.dof)}, got {samples.shape}")
+    samples = _check_samples(samples, (cfg.population, cfg.n_commands, robot.dof))
     if cfg.direct:  # every command at the start is passed at once: the rollout is the fabric alone
-        samples = jnp.asarray(samples).at[0].set(to_unconstrained(problem.start_q, robot.lower, robot.upper))
-    keys = jax.random.split(key, cfg.batches)
+        samples = samples.at[0].set(to_unconstrained(problem.start_q, robot.lower, robot.upper))
+    return _optimise(fns, robot, problem, samples, jax.random.split(key, cfg.batches), cfg, 1)[0]
+
+
+def solve_batch(
+    fabric, params: Params, problems: GFCOP, keys: jax.Array, cfg: GFCSConfig = GFCSConfig(), samples=None, steps_fns=None
+) -> list[GFCSResult]:
+    """Algorithm 1 on K problems at once: `problems` is a `GFCOP` whose leaves have a leading axis of
+    K (scenes padded to one capacity, e.g. `fabrax.scene.stack`), `keys` (K,) one key per problem.
+    Every batch rolls out all K populations in one call and runs K CMA-ES updates in one `vmap`, so
+    an accelerator steps K x population arms together; each problem's result is the one `solve`
+    gives it with its key (float rounding aside). samples: (K, population, n, dof) or None (uniform).
+    Per-batch wall times are the whole batch's, shared by its problems."""
+    robot = fabric.robot
+    fns = steps_fns or make_step(fabric, params, cfg, problems=True)
+    if not fns.problems:
+        raise ValueError("solve_batch: steps_fns were made for one problem; use make_step(..., problems=True)")
+    k = int(problems.start_q.shape[0])
+    if keys.shape[0] != k:
+        raise ValueError(f"solve_batch: {k} problems but {keys.shape[0]} keys")
+    split = jax.vmap(jax.random.split)(keys)  # as `solve` splits each problem's key
+    keys, k_samp = split[:, 0], split[:, 1]
+    if samples is None:
+        samples = jax.vmap(lambda kk: uniform_sampler(kk, robot, cfg.population, cfg.n_commands))(k_samp)
+    samples = _check_samples(samples, (k, cfg.population, cfg.n_commands, robot.dof))
+    if cfg.direct:
+        samples = samples.at[:, 0].set(to_unconstrained(problems.start_q, robot.lower, robot.upper)[:, None])
+    batch_keys = jax.vmap(lambda kk: jax.random.split(kk, cfg.batches))(keys)  # (K, batches)
+    return _optimise(fns, robot, problems, samples, jnp.swapaxes(batch_keys, 0, 1), cfg, k)
+
+
+def _optimise(fns: BatchFns, robot, problem, samples, keys, cfg: GFCSConfig, k: int) -> list[GFCSResult]:
+    """The batches of Algorithm 1 for one problem (k = 1, unbatched functions) or k problems
+    (functions vmapped over problems); keys[b] is batch b's key (of each problem)."""
     evaluate, compile_s = fns.evaluate.get(problem, samples)
     costs_s = evaluate.out_info[0]  # with its sharding: the population splits over the local devices
     start, c1 = fns.start.get(samples, costs_s, keys[0])
@@ -140,9 +184,10 @@ def solve(fabric, params: Params, problem: GFCOP, key: jax.Array, cfg: GFCSConfi
     if cfg.batches > 1:
         (ask, c0), (tell, c1) = fns.ask.get(start.out_info, keys[0]), fns.tell.get(samples, costs_s, start.out_info, keys[0])
         compile_s += c0 + c1
+    split = jax.vmap(jax.random.split) if fns.problems else jax.random.split
+    many = (lambda x: x) if fns.problems else (lambda x: x[None])  # results with a leading problem axis
 
-    all_z, all_cost, per_batch = [], [], []
-    best_cost, best_traj, best_z = np.inf, None, None
+    all_z, all_cost, walls, trajs = [], [], [], []
     state = None
     for b in range(cfg.batches):
         t0 = time.perf_counter()
@@ -151,28 +196,38 @@ def solve(fabric, params: Params, problem: GFCOP, key: jax.Array, cfg: GFCSConfi
             costs, traj = run(evaluate, problem, pop)
             state = run(start, pop, costs, keys[0])
         else:
-            k_ask, k_tell = jax.random.split(keys[b])
+            sub = split(keys[b])
+            k_ask, k_tell = (sub[:, 0], sub[:, 1]) if fns.problems else (sub[0], sub[1])
             pop, state = run(ask, state, k_ask)
             costs, traj = run(evaluate, problem, pop)
             state = run(tell, pop, costs, state, k_tell)
         costs = np.asarray(jax.block_until_ready(costs))
-        wall = time.perf_counter() - t0
-        pop = np.asarray(pop)
-        all_z.append(pop)
-        all_cost.append(costs)
-        k = int(np.argmin(costs))
-        if costs[k] < best_cost:
-            best_cost, best_traj, best_z = float(costs[k]), traj, pop[k]
-        per_batch.append({"batch": b + 1, "best_cost": best_cost, "trajectory": best_traj, "z": best_z, "wall_s": wall})
-    all_z, all_cost = np.concatenate(all_z), np.concatenate(all_cost)
-    order = np.argsort(all_cost)[: cfg.top_m]
-    return GFCSResult(
-        best_z=best_z,
-        best_commands=np.asarray(to_commands(jnp.asarray(best_z), robot.lower, robot.upper)),
-        best_cost=best_cost,
-        trajectory=best_traj,
-        top_z=all_z[order],
-        top_cost=all_cost[order],
-        per_batch=per_batch,
-        compile_s=compile_s,
-    )
+        walls.append(time.perf_counter() - t0)
+        all_z.append(np.asarray(many(pop)))
+        all_cost.append(many(costs))
+        trajs.append(jax.tree.map(many, traj))
+
+    results = []
+    for i in range(k):
+        best_cost, best_traj, best_z, per_batch = np.inf, None, None, []
+        for b in range(cfg.batches):
+            j = int(np.argmin(all_cost[b][i]))
+            if all_cost[b][i][j] < best_cost:
+                best_cost, best_z = float(all_cost[b][i][j]), all_z[b][i][j]
+                best_traj = jax.tree.map(lambda a: a[i], trajs[b])
+            per_batch.append({"batch": b + 1, "best_cost": best_cost, "trajectory": best_traj, "z": best_z, "wall_s": walls[b]})
+        zs, cs = np.concatenate([z[i] for z in all_z]), np.concatenate([c[i] for c in all_cost])
+        order = np.argsort(cs)[: cfg.top_m]
+        results.append(
+            GFCSResult(
+                best_z=best_z,
+                best_commands=np.asarray(to_commands(jnp.asarray(best_z), robot.lower, robot.upper)),
+                best_cost=best_cost,
+                trajectory=best_traj,
+                top_z=zs[order],
+                top_cost=cs[order],
+                per_batch=per_batch,
+                compile_s=compile_s,
+            )
+        )
+    return results
