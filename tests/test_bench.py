@@ -147,8 +147,8 @@ def test_mbm_loader_matches_converted_json(shared_data):
     for ref in converted["problems"]:
         cls, i = ref["class"], ref["index"]
         scene = parse_scene(files[f"{cls}_panda/scene{i:04d}.yaml"])
-        start, goal = parse_request(files[f"{cls}_panda/request{i:04d}.yaml"], names)
-        assert np.allclose(start, ref["start_q"], atol=1e-9) and np.allclose(goal, ref["goal_q"], atol=1e-9)
+        start, goal, pose = parse_request(files[f"{cls}_panda/request{i:04d}.yaml"], names)
+        assert np.allclose(start, ref["start_q"], atol=1e-9) and np.allclose(goal, ref["goal_q"], atol=1e-9) and pose is None
         assert len(scene["obstacles"]) == len(ref["obstacles"]), ref["name"]
         for ours, theirs in zip(scene["obstacles"], ref["obstacles"], strict=True):
             assert ours["type"] == theirs["type"] and ours["name"] == theirs["name"]

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 from fabrax import config
+from fabrax.bench.outdir import OutDirError, claim
 
 
 def compose(overrides: list[str]):
@@ -45,6 +46,13 @@ def check(cfg: dict) -> None:
     for key in ("dt", "t_max"):
         if isinstance(cfg[key], bool) or not isinstance(cfg[key], (int, float)) or not cfg[key] > 0:
             raise SystemExit(f"fabrax bench: {key} must be a positive number (s), got {cfg[key]!r}")
+    if cfg.get("fabric") is not None:
+        from fabrax.fabrics.arm import check_config
+
+        try:
+            check_config(cfg["fabric"])
+        except ValueError as e:
+            raise SystemExit(f"fabrax bench: {e}") from None
 
 
 def load_problems(cfg: dict, robot) -> list:
@@ -159,21 +167,34 @@ def rl_guide_method(m: dict, cfg: dict, robot):
 
 def run_bench(cfg: dict, out: Path) -> list[dict]:
     """Run the configured method on the configured problems; write results.json, paths.npz,
-    summary.md and plots to `out`. Returns the rows."""
+    summary.md and plots to `out`, which is claimed before any work (`fabrax.bench.outdir`). Returns
+    the rows; after writing them, exits non-zero when every valid problem's method raised or no
+    problem is valid."""
+    check(cfg)
+    try:
+        with claim(out, bool(cfg.get("resume", False))):
+            return _run_bench(cfg, out)
+    except OutDirError as e:
+        raise SystemExit(f"fabrax bench: {e}") from None
+
+
+def _run_bench(cfg: dict, out: Path) -> list[dict]:
     import jax
 
     from fabrax.bench.metrics import Goal
-    from fabrax.bench.runner import CheckpointMismatch, run, summary_table, write
+    from fabrax.bench.runner import CheckpointMismatch, errors, run, summary_table, write
 
-    check(cfg)
     robot_name = config.robot_choice(cfg)
+    hint = "" if os.environ.get("FABRAX_DATA") else " (set FABRAX_DATA or data_dir= to the shared data folder, e.g. ../shared/data)"
     try:
         robot = config.load_robot(robot_name)
+        method = make_method(cfg, robot)
+    except (ValueError, FileNotFoundError) as e:  # e.g. a robot's sphere file read from the data folder
+        raise SystemExit(f"fabrax bench: {e}{hint}") from None
+    try:
         problems = load_problems(cfg, robot)
     except (ValueError, FileNotFoundError) as e:
-        hint = "" if os.environ.get("FABRAX_DATA") else " (set FABRAX_DATA or data_dir= to the shared data folder, e.g. ../shared/data)"
         raise SystemExit(f"fabrax bench: {e}{hint}") from None
-    method = make_method(cfg, robot)
     t0 = time.perf_counter()
     settings = {k: v for k, v in cfg.items() if k not in ("out", "progress", "resume")}
     try:
@@ -205,6 +226,13 @@ def run_bench(cfg: dict, out: Path) -> list[dict]:
     print(summary_table(rows))
     print(f"results: {out / 'results.json'}")
     sys.stdout.flush()
+    valid = [r for r in rows if r["valid_problem"]]
+    failed = errors(rows)
+    if valid and len(failed) == len(valid):
+        raise SystemExit(f"fabrax bench: every problem failed with an error ({len(failed)}), e.g. {failed[0]['info']['error']}; results: {out}")
+    if not valid:
+        reason = rows[0]["invalid_reason"] if rows else "-"
+        raise SystemExit(f"fabrax bench: none of the {len(rows)} problems is valid, e.g. {reason}; results: {out}")
     return rows
 
 

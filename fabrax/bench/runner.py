@@ -138,7 +138,31 @@ def summary_table(rows: list[dict]) -> str:
         lines.append(f"| {method} | {cls} | {n}/{total} | {pct('success')} | {pct('collision')} | {by} | " + " | ".join(cells) + " |")
     note = "success by the run's criterion; joint / pose / keypoints: success by each criterion (joint tolerance, pose tolerance, "
     note += "mean keypoint distance). Metrics are means ± std over successful problems; lengths in m (EE) and rad (C-space), times in s."
-    return "\n".join(lines) + "\n\n" + note + "\n"
+    return "\n".join(lines) + "\n\n" + note + "\n" + problems_report(rows)
+
+
+def errors(rows: list[dict]) -> list[dict]:
+    """Rows of valid problems whose method raised (the reason in `info.error`): counted as failures."""
+    return [r for r in rows if r.get("valid_problem") and (r.get("info") or {}).get("error")]
+
+
+def problems_report(rows: list[dict]) -> str:
+    """Markdown lines counting the rows that errored and the invalid problems, by reason (empty when
+    there are none): a failure for a reason other than the motion never hides behind a success rate."""
+    out = []
+    for title, sel, reason in (
+        ("errors (the method raised; counted as failures)", errors(rows), lambda r: r["info"]["error"]),
+        ("invalid problems (not run)", [r for r in rows if not r.get("valid_problem")], lambda r: r.get("invalid_reason") or "?"),
+    ):
+        if not sel:
+            continue
+        counts: dict[str, int] = {}
+        for r in sel:
+            key = f"{r['method']}: {reason(r)}"
+            counts[key] = counts.get(key, 0) + 1
+        out.append(f"\n**{len(sel)} {title}**\n")
+        out += [f"- {n} x {key}" for key, n in sorted(counts.items(), key=lambda kv: -kv[1])]
+    return "\n".join(out) + ("\n" if out else "")
 
 
 def write(rows: list[dict], out: Path, meta: dict | None = None) -> None:
@@ -148,16 +172,28 @@ def write(rows: list[dict], out: Path, meta: dict | None = None) -> None:
     if paths:
         np.savez_compressed(out / "paths.npz", **paths)
     plain = [{k: v for k, v in r.items() if k != "path"} for r in rows]
-    (out / "results.json").write_text(json.dumps({"meta": meta or {}, "rows": plain}, indent=1, default=_jsonable))
+    text = json.dumps(strict_json({"meta": meta or {}, "rows": plain}), indent=1, allow_nan=False)
+    (out / "results.json").write_text(text)
     (out / "summary.md").write_text(summary_table(rows))
     plots(rows, out)
 
 
-def _jsonable(x):
-    if isinstance(x, (np.floating, np.integer, np.bool_)):
-        return x.item()
+def strict_json(x):
+    """`x` as standard JSON values: NaN and infinities become null (strict parsers such as
+    JavaScript's JSON.parse and jq reject bare NaN), numpy scalars and arrays plain numbers and
+    lists, anything else its string."""
+    if isinstance(x, dict):
+        return {str(k): strict_json(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [strict_json(v) for v in x]
     if isinstance(x, np.ndarray):
-        return x.tolist()
+        return strict_json(x.tolist())
+    if isinstance(x, (np.floating, np.integer, np.bool_)):
+        x = x.item()
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if x is None or isinstance(x, (bool, int, str)):
+        return x
     return str(x)
 
 

@@ -74,10 +74,31 @@ class Term(NamedTuple):
     points: Callable[[Robot], tuple[str, jax.Array, jax.Array]] | None = None  # (key, frame (N,), local (N, 3))
 
 
+def check_value(term: str, key: str, value, scalar: bool = True) -> None:
+    """A term parameter is a finite number >= 0 (gains, masses, lengths, weights) or, where the term
+    takes a vector (targets, offsets), finite numbers; else a ValueError naming
+    `fabric.terms.<term>.<key>`: a negative barrier gain or a NaN otherwise runs a whole solve."""
+    where = f"fabric.terms.{term}.{key}"
+    if scalar:
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or np.ndim(value):
+            raise ValueError(f"{where} must be a number, got {value!r}")
+        if not np.isfinite(value) or value < 0:
+            raise ValueError(f"{where} must be a finite number >= 0, got {value!r}")
+        return
+    try:
+        arr = np.asarray(value, np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{where} must be numbers, got {value!r}") from None
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{where} must be finite numbers, got {value!r}")
+
+
 def _params(defaults: dict[str, Any], overrides: dict[str, Any], name: str) -> Callable[[], dict[str, Any]]:
     unknown = set(overrides) - set(defaults)
     if unknown:
         raise ValueError(f"fabric term '{name}': unknown parameters {sorted(unknown)} (known: {sorted(defaults)})")
+    for key, value in overrides.items():
+        check_value(name, key, value, scalar=np.ndim(defaults[key]) == 0)
     merged = {**defaults, **overrides}
     return lambda: {k: jnp.asarray(v, jnp.float32) for k, v in merged.items()}
 

@@ -21,7 +21,7 @@ import yaml
 
 from fabrax.problems.problem import Problem, flag
 from fabrax.robot.robot import Robot
-from fabrax.scene import from_dict
+from fabrax.scene import empty, from_dict
 
 CLASSES = ("bookshelf_small", "bookshelf_tall", "bookshelf_thin", "box", "cage", "table_pick", "table_under_pick")
 ARCHIVE = "mbm_panda_problems.tar.bz2"
@@ -124,14 +124,39 @@ def parse_scene(text: str, where: str = "scene") -> dict:
     return {"obstacles": obstacles}
 
 
-def parse_request(text: str, joint_names: tuple[str, ...], where: str = "request") -> tuple[np.ndarray, np.ndarray]:
-    """(start_q, goal_q) of a MoveIt MotionPlanRequest with joint-space goal constraints."""
+def _xyz(v) -> list[float]:
+    """A MoveIt vector or point: a mapping {x, y, z} or a list."""
+    return [float(v[k]) for k in ("x", "y", "z")] if isinstance(v, dict) else [float(x) for x in v]
+
+
+def parse_request(
+    text: str, joint_names: tuple[str, ...], where: str = "request", frame: str = "panda_hand"
+) -> tuple[np.ndarray, np.ndarray | None, tuple[np.ndarray, np.ndarray] | None]:
+    """(start_q, goal_q, goal_pose) of a MoveIt MotionPlanRequest: a joint-space goal
+    (`joint_constraints`), or a pose goal of `frame` (a position constraint's region centre plus its
+    `target_point_offset`, and an orientation constraint, xyzw; goal_pose is (position, wxyz))."""
     try:
         data = yaml.safe_load(text)
         state = data["start_state"]["joint_state"]
         start = dict(zip(state["name"], state["position"], strict=True))
-        goal = {c["joint_name"]: c["position"] for c in data["goal_constraints"][0]["joint_constraints"]}
-        return np.array([start[n] for n in joint_names], float), np.array([goal[n] for n in joint_names], float)
+        start_q = np.array([start[n] for n in joint_names], float)
+        goal = data["goal_constraints"][0]
+        if goal.get("joint_constraints"):
+            values = {c["joint_name"]: c["position"] for c in goal["joint_constraints"]}
+            return start_q, np.array([values[n] for n in joint_names], float), None
+        if not goal.get("position_constraints") or not goal.get("orientation_constraints"):
+            raise ValueError("goal_constraints[0] has neither joint_constraints nor position_constraints with orientation_constraints")
+        pos_c, ori_c = goal["position_constraints"][0], goal["orientation_constraints"][0]
+        for c in (pos_c, ori_c):
+            if c.get("link_name", frame) != frame:
+                raise ValueError(f"the pose goal is for link '{c['link_name']}'; the benchmark's goal frame is '{frame}'")
+        centre = np.array(_xyz(pos_c["constraint_region"]["primitive_poses"][0]["position"]))
+        offset = np.array(_xyz(pos_c.get("target_point_offset") or [0.0, 0.0, 0.0]))
+        if np.any(offset):
+            raise ValueError("a position constraint with a target_point_offset is not supported")
+        o = ori_c["orientation"]
+        x, y, z, w = (float(o[k]) for k in ("x", "y", "z", "w")) if isinstance(o, dict) else (float(v) for v in o)
+        return start_q, None, (centre, np.array([w, x, y, z]))
     except (yaml.YAMLError, KeyError, TypeError, IndexError, ValueError) as e:
         raise ValueError(f"malformed MoveIt request {where}: {e}") from e
 
@@ -153,8 +178,10 @@ def _read_files(root: Path) -> dict[str, str]:
 
 
 def load_mbm(robot: Robot, path=None, classes=None, split: str = "test", limit: int | None = None) -> list[Problem]:
-    """MBM Panda problems as `Problem`s (joint goals), flagged (`valid`, `reason`) when the start or
-    goal is outside the limits or in collision for this robot's collision model.
+    """MBM Panda problems as `Problem`s (joint goals, or pose goals of panda_hand where a request has
+    them), flagged (`valid`, `reason`) when the start or goal is outside the limits, in collision for
+    this robot's collision model or out of its reach, or when its files are malformed (that problem
+    alone; the others load).
 
     classes: subset of `CLASSES` (default all); split: train (1-50), test (51-100) or all;
     limit: at most this many problems per class.
@@ -173,9 +200,14 @@ def load_mbm(robot: Robot, path=None, classes=None, split: str = "test", limit: 
             scene_key, request_key = f"{cls}_panda/scene{i:04d}.yaml", f"{cls}_panda/request{i:04d}.yaml"
             if scene_key not in files or request_key not in files:
                 raise ValueError(f"MBM data is missing {scene_key} or {request_key}")
-            scene = from_dict(parse_scene(files[scene_key], scene_key))
-            start, goal = parse_request(files[request_key], robot.joint_names, request_key)
-            p = Problem(start_q=start, scene=scene, goal_q=goal, name=f"{cls}/{i:04d}", kind=cls)
+            name = f"{cls}/{i:04d}"
+            try:
+                scene = from_dict(parse_scene(files[scene_key], scene_key))
+                start, goal, pose = parse_request(files[request_key], robot.joint_names, request_key)
+            except ValueError as e:  # this problem alone is reported invalid; the others go on
+                problems.append(Problem(np.zeros(robot.dof), empty(), name=name, kind=cls, valid=False, reason=str(e)))
+                continue
+            p = Problem(start_q=start, scene=scene, goal_q=goal, goal_pose=pose, name=name, kind=cls)
             problems.append(flag(robot, p))
     return problems
 

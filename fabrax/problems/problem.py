@@ -68,7 +68,8 @@ def make_problem(robot: Robot, start_q, scene: Scene | dict, goal_q=None, goal_p
 
 def validate(robot: Robot, p: Problem, collision_margin: float = 0.0) -> None:
     """Raise ValueError naming the field if the problem is malformed (wrong length, NaN), outside the
-    joint limits, or starts (or has its joint goal) in collision with the scene or itself."""
+    joint limits, starts (or has its joint goal) in collision with the scene or itself, or has a pose
+    goal out of the arm's reach (`Robot.reach`)."""
     lo, hi = np.asarray(robot.lower), np.asarray(robot.upper)
     if p.goal_q is None and p.goal_pose is None:
         raise ValueError(f"{p.name}: needs goal_q or goal_pose")
@@ -91,6 +92,9 @@ def validate(robot: Robot, p: Problem, collision_margin: float = 0.0) -> None:
             raise ValueError(f"{p.name}.{field}[{j}] = {q[j]:.4f} is outside the joint limits [{lo[j]:.4f}, {hi[j]:.4f}] of {robot.joint_names[j]}")
     if p.goal_pose is not None and not math.isclose(float(np.linalg.norm(p.goal_pose[1])), 1.0, abs_tol=1e-3):
         raise ValueError(f"{p.name}.goal_pose.quat_wxyz must be a unit quaternion, got {p.goal_pose[1].tolist()}")
+    if p.goal_pose is not None and float(np.linalg.norm(p.goal_pose[0])) > robot.reach:
+        dist = float(np.linalg.norm(p.goal_pose[0]))
+        raise ValueError(f"{p.name}.goal_pose.position is {dist:.2f} m from the base of {robot.name}, out of its reach ({robot.reach:.2f} m)")
     checks = [("start_q", p.start_q)] + ([("goal_q", p.goal_q)] if p.goal_q is not None else [])
     env, slf, _ = state_clearances(robot, p.scene, jnp.asarray(np.stack([q for _, q in checks]), jnp.float32))
     for (field, _), e, s in zip(checks, np.asarray(env), np.asarray(slf), strict=True):

@@ -73,6 +73,15 @@ class Robot:
             raise ValueError(f"frame '{name}' is not defined on robot '{self.name}' (frames: {', '.join(self.frame_names)})")
         return self.frame_names.index(name)
 
+    @property
+    def reach(self) -> float:
+        """An upper bound (m) of how far any frame gets from the base: the joint origins' offsets
+        summed along the whole tree plus the largest link and extra-frame offset (the triangle
+        inequality), so a target farther away is out of reach in every configuration."""
+        chain = float(np.sum(np.linalg.norm(np.asarray(self.joint_origin_t), axis=-1)))
+        tips = [np.asarray(a) for a in (self.link_offset_t, self.frame_offset_t) if np.size(a)]
+        return chain + sum(float(np.max(np.linalg.norm(t, axis=-1))) for t in tips)
+
     def frame_point(self, name: str, offset=(0.0, 0.0, 0.0)):
         """(frame index, local position) of a point rigidly attached to a named frame."""
         i = self.frame_index(name)

@@ -45,11 +45,23 @@ def camera_view(scene, targets: np.ndarray, elevation: float = 0.45, samples: in
     return tuple(float(v) for v in eyes[best]), tuple(float(v) for v in centre)
 
 
+def _not_a_handshake(record) -> bool:
+    """logging filter: drop websockets' "opening handshake failed" records (with a traceback each),
+    which any connection that is not a browser's websocket (a port probe, a health check) causes."""
+    return not str(record.getMessage()).startswith("opening handshake failed")
+
+
 class Viewer:
     """A viser server showing one robot; GUI toggles for its collision spheres."""
 
     def __init__(self, robot_name: str | dict = "panda", host: str = "127.0.0.1", port: int = 8080, frame: str | None = None):
+        import logging
+
         import viser
+
+        server_log = logging.getLogger("websockets.server")
+        if _not_a_handshake not in server_log.filters:
+            server_log.addFilter(_not_a_handshake)
 
         self.robot_cfg = config.load("robot", robot_name) if isinstance(robot_name, str) else robot_name
         self.robot_name = robot_name  # a configs/robot name or a composed robot config

@@ -38,14 +38,23 @@ def main(argv: list[str] | None = None) -> int:
     if args.seconds is not None and not args.seconds > 0:
         parser.error(f"--seconds must be positive, got {args.seconds}")
 
+    for run in args.runs if args.mode in ("results", "skill") else ():
+        if not (Path(run) / "results.json").is_file():
+            what = "a benchmark run directory" if args.mode == "results" else "a skills run directory"
+            parser.error(f"{run} is not {what} (no results.json there)")
+
     from fabrax.viz import app
 
     robot = args.robot
-    if args.mode == "skill":
-        robot = (json.loads((Path(args.runs[0]) / "results.json").read_text()).get("config") or {}).get("robot", robot)
-    if args.mode == "results":
-        meta = app.load_results(args.runs[0])[0]
-        robot = meta.get("robot") or (meta.get("config") or {}).get("robot") or ("panda_mbm" if meta["config"].get("problems") == "mbm" else robot)
+    try:
+        if args.mode == "skill":
+            robot = (json.loads((Path(args.runs[0]) / "results.json").read_text()).get("config") or {}).get("robot", robot)
+        if args.mode == "results":
+            meta = app.load_results(args.runs[0])[0]
+            mbm = meta["config"].get("problems") == "mbm"
+            robot = meta.get("robot") or (meta.get("config") or {}).get("robot") or ("panda_mbm" if mbm else robot)
+    except (OSError, ValueError, KeyError, AttributeError) as e:  # json's errors are ValueErrors
+        raise SystemExit(f"fabrax view {args.mode}: {args.runs[0]}: cannot read the run ({type(e).__name__}: {e})") from None
     viewer = app.Viewer(robot, host=args.host, port=args.port)
     if args.mode == "demo":
         print(app.view_demo(viewer, args.fabric))
