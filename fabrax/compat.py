@@ -1,4 +1,5 @@
-"""Compatibility of the libraries fabrax builds on across the supported JAX range (jax 0.9.2-0.11).
+"""Compatibility of the libraries fabrax builds on across the supported JAX range (jax 0.9.2-0.11),
+and their import-time noise.
 
 brax 0.14.2 (the newest brax) replicates its training state over devices with
 `jax.device_put_replicated`, which jax removed from its public namespace after 0.9 (accessing it
@@ -6,10 +7,17 @@ raises AttributeError). `brax_ppo()` returns brax's PPO module with the function
 jax's own implementation where jax still ships it, else the same replication by public API (the
 value stacked once per device, sharded along the new leading axis). Everything in fabrax that
 trains with brax imports PPO through here.
+
+mujoco-mjx 3.17 prints "Failed to import warp" and "Failed to import mujoco_warp" when it is
+imported without the optional NVIDIA Warp backend, which fabrax does not use; `quiet_mjx()` imports
+it once with those two lines dropped (anything else it prints is printed).
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
+import sys
 from typing import Sequence
 
 import jax
@@ -52,3 +60,19 @@ def brax_ppo():
     from brax.training.agents.ppo import train as ppo
 
     return ppo
+
+
+WARP_NOISE = ("Failed to import warp:", "Failed to import mujoco_warp:")
+
+
+def quiet_mjx():
+    """`mujoco.mjx`, imported without its optional-backend notices (see the module docstring)."""
+    if "mujoco.mjx" in sys.modules:
+        return sys.modules["mujoco.mjx"]
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        from mujoco import mjx
+    rest = [line for line in buf.getvalue().splitlines() if not line.startswith(WARP_NOISE)]
+    if rest:
+        print("\n".join(rest))
+    return mjx

@@ -109,3 +109,12 @@ def test_device_put_replicated_for_brax():
         # what brax does with it: a pmapped function over the replicas
         summed = jax.pmap(lambda t: t["w"].sum() + t["step"])(out)
         np.testing.assert_allclose(np.asarray(summed), np.full(len(devices), 18.0))
+
+
+def test_importing_the_rl_guide_prints_no_optional_backend_notices():
+    """mujoco-mjx prints two "Failed to import warp" lines without NVIDIA Warp; fabrax drops them."""
+    out = subprocess.run(
+        [sys.executable, "-c", "import fabrax.rl, brax.training.agents.ppo.train; print('ok')"], capture_output=True, text=True, timeout=300
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines() == ["ok"] and "warp" not in out.stderr.lower()

@@ -191,3 +191,16 @@ def test_viewer_plays_the_trained_guide_on_a_held_out_scene(run):
         viewer.close()
     assert info["policy"] == "guide" and info["scene"].startswith("cuboid_forest/")
     assert info["fabric_steps"] == 1 + 4 * info["steps"]  # the run's 4 substeps per policy step
+
+
+def test_training_keeps_brax_metric_dumps_off_the_console(run):
+    """brax dumps ~20 lines of metrics per iteration through the root logger; fabrax's own lines and
+    progress.jsonl carry them, so the dumps are filtered while training, and only then."""
+    import logging
+
+    from fabrax.rl.train import _not_brax_metrics
+
+    assert _not_brax_metrics not in logging.getLogger().filters
+    dump = logging.LogRecord("root", logging.INFO, "/env/site-packages/brax/training/logger.py", 85, "Steps Env: 128", None, None)
+    ours = logging.LogRecord("fabrax.rl", logging.INFO, "/src/fabrax/rl/train.py", 240, "step 128 train", None, None)
+    assert not _not_brax_metrics(dump) and _not_brax_metrics(ours)

@@ -188,6 +188,11 @@ def plot_curves(run_dir: Path) -> Path | None:
     return out
 
 
+def _not_brax_metrics(record: logging.LogRecord) -> bool:
+    """Root-logger filter: drop brax's per-iteration metric dumps (`brax.training.logger`)."""
+    return not record.pathname.replace("\\", "/").endswith("brax/training/logger.py")
+
+
 def train(settings: dict[str, Any], run_dir: str | Path, resume: bool = False, data_dir=None):
     """Train (or, with `resume`, continue) a guide; returns (make_policy, params, final metrics)."""
     from brax.training.agents.ppo import checkpoint as ppo_checkpoint
@@ -240,7 +245,9 @@ def train(settings: dict[str, Any], run_dir: str | Path, resume: bool = False, d
         line = {"step": offset + int(step), "wall_s": round(time.time() - t0, 1), "devices": jax.local_device_count(), kind: row}
         with open(run_dir / "progress.jsonl", "a") as f:
             f.write(json.dumps(line) + "\n")
-        log.info("step %d %s: %s", line["step"], kind, ", ".join(f"{k} {row[k]:.3g}" for k in CURVES if k in row))
+        shown = ", ".join(f"{k} {row[k]:.3g}" for k in CURVES if k in row)
+        if shown:  # a training log before any episode finished has nothing to show
+            log.info("step %d %s: %s", line["step"], kind, shown)
         if kind == "eval":
             plot_curves(run_dir)
 
@@ -251,20 +258,31 @@ def train(settings: dict[str, Any], run_dir: str | Path, resume: bool = False, d
         ppo_checkpoint.save(ckpt_dir, offset + int(step), params, cfg)
 
     kwargs = {k: v for k, v in dataclasses.asdict(p).items() if k != "num_timesteps"}
-    make_policy, params, metrics = ppo.train(
-        env,
-        num_timesteps=remaining,
-        episode_length=env.cfg.episode_steps,
-        wrap_env_fn=wrap,
-        network_factory=factory,
-        eval_env=eval_env,
-        deterministic_eval=True,
-        log_training_metrics=True,
-        training_metrics_steps=p.batch_size * p.num_minibatches * p.unroll_length,
-        progress_fn=record,
-        policy_params_fn=save,
-        restore_checkpoint_path=None if restore is None else str(restore),
-        **kwargs,
-    )
+    # brax logs every metric after each training iteration (about 20 lines, through the root logger
+    # from brax/training/logger.py, and absl at INFO); progress.jsonl and the lines above carry them,
+    # so while it trains the console keeps brax's warnings only
+    absl_log, root = logging.getLogger("absl"), logging.getLogger()
+    absl_level = absl_log.level
+    absl_log.setLevel(max(absl_level, logging.WARNING))
+    root.addFilter(_not_brax_metrics)
+    try:
+        make_policy, params, metrics = ppo.train(
+            env,
+            num_timesteps=remaining,
+            episode_length=env.cfg.episode_steps,
+            wrap_env_fn=wrap,
+            network_factory=factory,
+            eval_env=eval_env,
+            deterministic_eval=True,
+            log_training_metrics=True,
+            training_metrics_steps=p.batch_size * p.num_minibatches * p.unroll_length,
+            progress_fn=record,
+            policy_params_fn=save,
+            restore_checkpoint_path=None if restore is None else str(restore),
+            **kwargs,
+        )
+    finally:
+        absl_log.setLevel(absl_level)
+        root.removeFilter(_not_brax_metrics)
     plot_curves(run_dir)
     return make_policy, params, metrics
