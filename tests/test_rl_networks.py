@@ -88,3 +88,32 @@ def test_ppo_factory_shapes_and_parameter_counts_match_table_3_4(panda, variant)
         assert n == trunk + _dense(128, outputs or 1)
         out = net.apply(None, params, obs)
         assert out.shape == ((3, 2, outputs) if outputs else (3, 2))
+
+
+def test_normalised_observations_are_clipped_so_a_constant_feature_cannot_explode(panda):
+    """A feature that was constant while the normaliser learned its statistics (the switch through
+    curriculum stage 1) has std 1e-6 in brax's normaliser; its first change must reach the actor
+    bounded (OBS_CLIP standard deviations), not as ~1e6."""
+    from types import SimpleNamespace
+
+    from brax.training.acme import running_statistics
+
+    from fabrax.rl import FabricGuideEnv, env_config
+    from fabrax.rl.networks import _split, make_guide_networks, ppo_observation
+
+    shapes = FabricGuideEnv.observation_size.fget(SimpleNamespace(cfg=env_config({}), robot=panda))
+    sizes = {k: tuple(v) for k, v in ppo_observation(shapes).items()}
+    nets = make_guide_networks(sizes, 6 + panda.dof + 1, preprocess_observations_fn=running_statistics.normalize, variant="mlp", hidden=(16,))
+    params = nets.policy_network.init(jax.random.PRNGKey(0))
+    obs = {k: jax.random.normal(jax.random.PRNGKey(i), (32,) + s) for i, (k, s) in enumerate(sizes.items())}
+    obs["switch"] = jnp.zeros_like(obs["switch"])  # stage 1: always off
+    vectors, _ = _split(obs)
+    stats = running_statistics.update(running_statistics.init_state(jax.tree.map(lambda x: x[0], vectors)), vectors)
+    assert float(stats.std["switch"].min()) <= 1e-6
+
+    def act(switch):
+        return nets.policy_network.apply(stats, params, {**obs, "switch": jnp.full_like(obs["switch"], switch)})
+
+    off, on, far = act(0.0), act(1.0), act(1e3)
+    assert bool(jnp.all(jnp.isfinite(on))) and not np.allclose(off, on)
+    np.testing.assert_allclose(on, far, rtol=1e-5, atol=1e-5)  # both clipped to +OBS_CLIP

@@ -13,6 +13,7 @@ act on 2-D arrays only: on 5-D tensors their gradients were 7-20x slower here.
 
 from __future__ import annotations
 
+import functools
 from typing import Sequence
 
 import jax
@@ -20,6 +21,11 @@ import jax.numpy as jnp
 from flax import linen as nn
 
 BPS_HEAD = ((8, 4, 2), (16, 3, 2), (32, 2, 1))  # (filters, kernel, stride) per layer
+# Normalised observations are clipped to +-OBS_CLIP standard deviations, as rl-games (the thesis' PPO)
+# and IsaacGym tasks clip theirs. brax's running normaliser divides by a std floored at 1e-6 and does
+# not clip: the `switch` observation is 0 throughout curriculum stage 1, so the first 1 (stage 2, and
+# every evaluation, which runs in stage 2) reached the actor as ~1e6 and its outputs saturated.
+OBS_CLIP = 5.0
 MAP_HEAD = ((4, 4, 2), (8, 3, 2), (16, 3, 1))
 GRIDS = ("bps", "exploration")  # 3-D inputs: given to PPO as "pixels/<name>", which brax's normaliser leaves out
 PROPRIO = ("goal_keypoints", "q", "hand_keypoints", "fabric_q", "fabric_qd", "fabric_qdd", "dynamic_bps", "switch")
@@ -124,9 +130,12 @@ def make_guide_networks(
     Gaussian over the action box [-1, 1]. `preprocess_observations_fn` is brax's normaliser
     (identity by default); `variant` and `hidden` are plain values, so brax's checkpoints record them."""
     from brax.training import distribution, networks, types
+    from brax.training.acme import running_statistics
     from brax.training.agents.ppo.networks import PPONetworks
 
     preprocess = preprocess_observations_fn or types.identity_observation_preprocessor
+    if preprocess is running_statistics.normalize:  # normalised observations clipped to +-OBS_CLIP (see OBS_CLIP)
+        preprocess = functools.partial(running_statistics.normalize, max_abs_value=OBS_CLIP)
     if not isinstance(observation_size, dict) or "q" not in observation_size or "pixels/bps" not in observation_size:
         raise ValueError("the guide's networks need the environment's dict observations as `ppo_observation` names them")
     shapes = {k.removeprefix("pixels/"): tuple(v) for k, v in observation_size.items()}

@@ -243,6 +243,9 @@ def train(settings: dict[str, Any], run_dir: str | Path, resume: bool = False, d
         if kind == "eval":
             row["sps"] = float(metrics.get("training/sps", float("nan")))
         line = {"step": offset + int(step), "wall_s": round(time.time() - t0, 1), "devices": jax.local_device_count(), kind: row}
+        losses = {k[len("training/") :]: float(v) for k, v in metrics.items() if k.startswith("training/") and k != "training/sps"}
+        if losses:  # PPO's own health: kl_mean, the losses, the action distribution's spread
+            line["ppo"] = losses
         with open(run_dir / "progress.jsonl", "a") as f:
             f.write(json.dumps(line) + "\n")
         shown = ", ".join(f"{k} {row[k]:.3g}" for k in CURVES if k in row)
