@@ -98,6 +98,7 @@ def main() -> None:
     args.out.with_suffix(".json").write_text(json.dumps(result, indent=1))
     args.out.with_suffix(".md").write_text(markdown(result))
     print(markdown(result))
+    print(f"written: {args.out.with_suffix('.md')}, {args.out.with_suffix('.json')}")
 
 
 if __name__ == "__main__":

@@ -135,6 +135,13 @@ def test_bench_method_runs_a_checkpoint_and_refuses_bad_ones(run, panda, tmp_pat
     assert sol.dt == pytest.approx(1 / 60) and sol.info["reaction_ms"] > 0
     assert len(sol.q) == 1 + sol.info["policy_steps"] * method.env.cfg.substeps
 
+    assert method.env.cfg.episode_s == 20.0 != TINY["env"]["episode_s"]  # the thesis' evaluation, not the training episodes
+    robot = load("robot", "panda")
+    other = {**cfg, "robot": {**robot, "spheres": {**robot["spheres"], "budget": 40}}}
+    with pytest.raises(SystemExit, match=r"trained with other robot settings \(spheres.budget\)"):
+        rl_guide_method({"name": "rl_guide", "checkpoint": str(run_dir), "scripted": None}, other, panda)
+    with pytest.raises(SystemExit, match="method.episode_s must be a positive number"):
+        rl_guide_method({"name": "rl_guide", "checkpoint": str(run_dir), "scripted": None, "episode_s": 0}, cfg, panda)
     with pytest.raises(SystemExit, match="does not exist"):
         rl_guide_method({"name": "rl_guide", "checkpoint": str(tmp_path / "nothing"), "scripted": None}, cfg, panda)
     broken = tmp_path / "broken"

@@ -8,6 +8,7 @@ Sweeps (hydra multirun, one run directory per job): experiments/bench.py -m ...;
 
 from __future__ import annotations
 
+import json
 import os
 import platform
 import sys
@@ -155,14 +156,32 @@ def rl_guide_method(m: dict, cfg: dict, robot):
             guide = load_guide(m["checkpoint"])
         except ValueError as e:
             raise SystemExit(f"fabrax bench: {e}") from None
-        act, env_settings, fabric_cfg = guide.act, guide.settings["env"], guide.settings["fabric"]
-        trained = guide.settings["robot"]["name"]
-        if trained != robot.name:
-            raise SystemExit(f"fabrax bench: the guide was trained on robot '{trained}'; run it with robot={trained}")
+        act, env_settings, fabric_cfg = guide.act, dict(guide.settings["env"]), guide.settings["fabric"]
+        trained = guide.settings["robot"]
+        if trained["name"] != robot.name:
+            raise SystemExit(f"fabrax bench: the guide was trained on robot '{trained['name']}'; run it with robot={trained['name']}")
+        ours = json.loads(json.dumps(cfg.get("robot") or config.load("robot", robot.name)))
+        differ = _differing(json.loads(json.dumps(trained)), ours)
+        if differ:  # e.g. another sphere budget: other observation shapes, every problem would fail
+            raise SystemExit(f"fabrax bench: the guide was trained with other robot settings ({', '.join(differ)}); set them as in its settings.json")
+    episode_s = m.get("episode_s", 20.0)
+    if isinstance(episode_s, bool) or not isinstance(episode_s, (int, float)) or not episode_s > 0:
+        raise SystemExit(f"fabrax bench: method.episode_s must be a positive number of seconds, got {episode_s!r}")
+    env_settings = {**env_settings, "episode_s": float(episode_s)}  # the thesis' evaluation, whatever the training episodes were
     env_cfg = env_config(env_settings)
     fabric, params = config.load_fabric(robot, fabric_cfg)
     env = FabricGuideEnv(fabric, params, None, env_cfg)
     return RLGuideMethod(env, act, m["name"], m.get("scripted"), int(m.get("batch_size", 32)))
+
+
+def _differing(a, b, prefix: str = "") -> list[str]:
+    """Dotted keys whose values differ between two nested mappings; two file paths with the same
+    file name count as equal (a data folder may sit elsewhere on another machine)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return [d for k in sorted(set(a) | set(b)) for d in _differing(a.get(k), b.get(k), f"{prefix}{k}.")]
+    if isinstance(a, str) and isinstance(b, str) and "/" in a + b:
+        return [] if Path(a).name == Path(b).name else [prefix.rstrip(".")]
+    return [] if a == b else [prefix.rstrip(".")]
 
 
 def run_bench(cfg: dict, out: Path) -> list[dict]:
