@@ -20,6 +20,16 @@ def panda():
 
 
 @pytest.fixture
+def free_port() -> int:
+    """A TCP port on the loopback that nothing listens on (for a viewer under test)."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
 def shared_data():
     path = data_dir()
     if path is None:

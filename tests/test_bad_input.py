@@ -236,16 +236,14 @@ def test_view_of_a_missing_run_is_one_line(capsys, tmp_path):
     assert e.value.code == 2 and "nope is not a benchmark run directory (no results.json there)" in err and "Traceback" not in err
 
 
-def test_a_port_probe_of_the_viewer_logs_no_traceback(caplog):
+def test_a_port_probe_of_the_viewer_logs_no_traceback(caplog, free_port):
     """A connection that is not a browser's websocket (a port scan, a health check) closes quietly."""
     import logging
     import socket
 
     from fabrax.viz.app import Viewer
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port
     viewer = Viewer("panda", port=port)
     try:
         with caplog.at_level(logging.ERROR, logger="websockets.server"):

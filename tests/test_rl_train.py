@@ -182,16 +182,11 @@ def test_resampling_reset_and_episode_sums():
     assert np.all(stage[6:] == 2)  # finished episodes visited >= 1 cell: the curriculum moved on
 
 
-def test_viewer_plays_the_trained_guide_on_a_held_out_scene(run):
-    import socket
-
+def test_viewer_plays_the_trained_guide_on_a_held_out_scene(run, free_port):
     from fabrax.viz.app import Viewer
     from fabrax.viz.rl_view import rl_view
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    viewer = Viewer("panda", port=port)
+    viewer = Viewer("panda", port=free_port)
     try:
         info = rl_view(viewer, checkpoint=run[0])
     finally:
