@@ -10,12 +10,15 @@ from omegaconf import OmegaConf
 
 
 def config_dir() -> Path:
-    """The hydra config root: $FABRAX_CONFIGS or the `configs/` folder beside the package."""
+    """The hydra config root: $FABRAX_CONFIGS, else the `configs/` folder of a source checkout (beside
+    the package), else the copy an installed wheel carries as `fabrax/configs`."""
     env = os.environ.get("FABRAX_CONFIGS")
-    path = Path(env) if env else Path(__file__).resolve().parent.parent / "configs"
-    if not path.is_dir():
-        raise ValueError(f"config folder {path} not found: set FABRAX_CONFIGS")
-    return path
+    here = Path(__file__).resolve().parent
+    candidates = [Path(env)] if env else [here.parent / "configs", here / "configs"]
+    for path in candidates:
+        if path.is_dir():
+            return path
+    raise ValueError(f"config folder {candidates[0]} not found: set FABRAX_CONFIGS")
 
 
 def _load_node(group: str, name: str):

@@ -191,8 +191,13 @@ def view_demo(viewer: Viewer, fabric_name: str = "panda", dt: float = 0.01, t_ma
     return {"problem": problem.name, "reached": reached, "steps": len(q)}
 
 
+REST_SPEED = 1e-3  # rad/s: below this on every joint, with the goal and obstacles unmoved, the live loop pauses
+
+
 def live(viewer: Viewer, fabric_name: str = "panda", dt: float = 0.01, problem: Problem | None = None, substeps: int = 2) -> dict:
     """The fabric runs in real time; drag the goal gizmo and the obstacles and the arm reacts.
+    Once the arm rests (every joint slower than REST_SPEED) and nothing has moved, the loop stops
+    computing until the goal or an obstacle moves (steps still count the simulated time).
 
     Each drawn frame advances the fabric `substeps` steps of dt (100 steps/s, 50 frames/s by
     default). Returns a dict that the control thread keeps current: steps taken, the achieved
@@ -218,8 +223,11 @@ def live(viewer: Viewer, fabric_name: str = "panda", dt: float = 0.01, problem: 
     handles = draw_scene(viewer.server, data, "/obstacles_geom")
     viewer.nodes += [gizmo, *movers, *handles]
     viewer.frame_problem(problem)
+    hint = viewer.server.gui.add_markdown(
+        "**Drag** the large frame (the hand's goal pose) or the small arrows on each obstacle: the fabric reacts in real time."
+    )
     rate = viewer.server.gui.add_markdown("compiling the fabric step (the first call takes about a minute on a laptop CPU) ...")
-    viewer.nodes.append(rate)
+    viewer.nodes += [hint, rate]
 
     def frame(p, s, q, qd):  # `substeps` fabric steps per drawn frame, in one scan
         def one(c, _):
@@ -233,19 +241,21 @@ def live(viewer: Viewer, fabric_name: str = "panda", dt: float = 0.01, problem: 
     seen = {"goal": None, "obstacles": None}
     inputs = {}
 
-    def refresh():
-        """New fabric parameters / scene only when the user moved the goal or an obstacle."""
+    def refresh() -> bool:
+        """New fabric parameters / scene only when the user moved the goal or an obstacle; True then."""
+        changed = False
         goal = np.concatenate([gizmo.position, gizmo.wxyz])
         if seen["goal"] is None or not np.array_equal(goal, seen["goal"]):
             inputs["params"] = aim(jnp.asarray(goal[:3], jnp.float32), jnp.asarray(goal[3:], jnp.float32))
-            seen["goal"] = goal
+            seen["goal"], changed = goal, True
         where = np.asarray([m.position for m in movers]).reshape(-1, 3)
         if seen["obstacles"] is None or not np.array_equal(where, seen["obstacles"]):
             for o, c, h in zip(data["obstacles"], where, handles):
                 o["center"] = c.tolist()
                 h.position = c
             inputs["scene"] = from_dict(data).pad(**COMMON_CAPACITY)
-            seen["obstacles"] = where
+            seen["obstacles"], changed = where, True
+        return changed
 
     stop = viewer._stop
 
@@ -253,16 +263,19 @@ def live(viewer: Viewer, fabric_name: str = "panda", dt: float = 0.01, problem: 
         q, qd = jnp.asarray(problem.start_q, jnp.float32), jnp.zeros(robot.dof, jnp.float32)
         t_last, n_last = time.perf_counter(), 0
         next_t = time.perf_counter()
+        resting = False
         while state["running"] and not stop.is_set():
-            refresh()
-            q, qd = advance(inputs["params"], inputs["scene"], q, qd)
-            state["q"] = np.asarray(q)
-            viewer.arm.update(state["q"])
+            resting = resting and not refresh()
+            if not resting:  # at rest with nothing moved, the fabric stays at its equilibrium: no work
+                q, qd = advance(inputs["params"], inputs["scene"], q, qd)
+                state["q"] = np.asarray(q)
+                viewer.arm.update(state["q"])
+                resting = float(jnp.max(jnp.abs(qd))) < REST_SPEED
             state["steps"] += substeps
             now = time.perf_counter()
             if now - t_last >= 1.0:
                 state["hz"] = (state["steps"] - n_last) / (now - t_last)
-                rate.content = f"fabric: {state['hz']:.0f} steps/s (real time: {1 / dt:.0f})"
+                rate.content = f"fabric: {state['hz']:.0f} steps/s (real time: {1 / dt:.0f})" + (", at rest" if resting else "")
                 t_last, n_last = now, state["steps"]
             next_t += substeps * dt
             time.sleep(max(0.0, next_t - time.perf_counter()))
