@@ -265,7 +265,8 @@ def live(viewer: Viewer, fabric_name: str = "panda", dt: float = 0.01, problem: 
         next_t = time.perf_counter()
         resting = False
         while state["running"] and not stop.is_set():
-            resting = resting and not refresh()
+            moved = refresh()  # always: it also builds the first parameters and scene
+            resting = resting and not moved
             if not resting:  # at rest with nothing moved, the fabric stays at its equilibrium: no work
                 q, qd = advance(inputs["params"], inputs["scene"], q, qd)
                 state["q"] = np.asarray(q)
