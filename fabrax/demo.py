@@ -18,7 +18,7 @@ import numpy as np
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="fabrax demo", description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="demo_trajectory.npz", help="where to write the trajectory (.npz)")
+    parser.add_argument("--out", default=None, help="write the trajectory to this .npz file (default: not written)")
     parser.add_argument("--robot", default="panda", help="robot config in configs/robot")
     parser.add_argument("--fabric", default="panda", help="fabric config in configs/fabric")
     parser.add_argument("--dt", type=float, default=0.01)
@@ -59,20 +59,21 @@ def main(argv: list[str] | None = None) -> int:
         "plan_wall_time_s": round(wall, 4),
         "setup_and_compile_s": round(t1 - t0, 2),
     }
-    out = Path(args.out)
-    np.savez(
-        out,
-        q=q,
-        qd=np.asarray(tr.qd[0, :n]),
-        qdd=np.asarray(tr.qdd[0, :n]),
-        dt=args.dt,
-        joint_names=np.asarray(robot.joint_names),
-        goal_q=problem.goal_q,
-        report=json.dumps(report),
-    )
+    out = None if args.out is None else Path(args.out)
+    if out is not None:
+        np.savez(
+            out,
+            q=q,
+            qd=np.asarray(tr.qd[0, :n]),
+            qdd=np.asarray(tr.qdd[0, :n]),
+            dt=args.dt,
+            joint_names=np.asarray(robot.joint_names),
+            goal_q=problem.goal_q,
+            report=json.dumps(report),
+        )
     for k, v in report.items():
         print(f"{k:>22}: {v}")
-    print(f"{'trajectory':>22}: {out}")
+    print(f"{'trajectory':>22}: {out if out is not None else 'not written (--out FILE.npz keeps it)'}")
     print("OK" if ok else "FAILED")
     return 0 if ok else 1
 

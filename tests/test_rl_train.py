@@ -117,6 +117,10 @@ def test_checkpoint_holds_the_trained_parameters_and_resume_continues(run, tmp_p
     assert steps[-1] >= 512 and steps[-1] > guide.steps
     rows = [json.loads(line) for line in (resumed / "progress.jsonl").read_text().splitlines()]
     assert max(r["step"] for r in rows) == steps[-1]
+    evals = [r["step"] for r in rows if "eval" in r]
+    assert len(evals) == len(set(evals)) and guide.steps in evals  # the resume step is evaluated once
+    walls = [r["wall_s"] for r in rows]
+    assert walls == sorted(walls)  # wall time goes on from the stopped run's
     new = load_guide(resumed).params
     assert any(not np.allclose(a, b) for a, b in zip(_leaves(new[1]), _leaves(params[1])))
     assert {r["devices"] for r in rows if r["step"] > guide.steps} == {2}

@@ -205,7 +205,7 @@ def train(settings: dict[str, Any], run_dir: str | Path, resume: bool = False, d
     run_dir = Path(run_dir).resolve()  # orbax takes absolute paths only
     run_dir.mkdir(parents=True, exist_ok=True)
     settings_path = run_dir / "settings.json"
-    offset, restore, start_stage = 0, None, 1
+    offset, restore, start_stage, wall_before, evaluated = 0, None, 1, 0.0, set()
     if settings_path.exists():
         old = json.loads(settings_path.read_text())
         diff = _differences(_comparable(old), _comparable(settings))
@@ -217,8 +217,11 @@ def train(settings: dict[str, Any], run_dir: str | Path, resume: bool = False, d
         restore = latest_checkpoint(run_dir)
         if restore is not None:
             offset = int(restore.name)
-            trained = [r for r in _progress(run_dir) if "train" in r and "stage_per_step" in r["train"]]
+            rows = _progress(run_dir)
+            trained = [r for r in rows if "train" in r and "stage_per_step" in r["train"]]
             start_stage = 2 if trained and trained[-1]["train"]["stage_per_step"] > 1.5 else 1
+            wall_before = max((r["wall_s"] for r in rows), default=0.0)  # wall_s goes on from the stopped run's
+            evaluated = {r["step"] for r in rows if "eval" in r}  # brax evaluates again at the resume step
     settings = _plain(settings)
     settings_path.write_text(json.dumps(settings, indent=2))
     p = PPOConfig(**settings["ppo"])
@@ -242,7 +245,9 @@ def train(settings: dict[str, Any], run_dir: str | Path, resume: bool = False, d
         row = {k[len(prefix) :]: float(v) for k, v in metrics.items() if k.startswith(prefix) and not k.endswith("_std")}
         if kind == "eval":
             row["sps"] = float(metrics.get("training/sps", float("nan")))
-        line = {"step": offset + int(step), "wall_s": round(time.time() - t0, 1), "devices": jax.local_device_count(), kind: row}
+        if kind == "eval" and offset + int(step) in evaluated:
+            return  # the same parameters, evaluated when the stopped run saved them
+        line = {"step": offset + int(step), "wall_s": round(wall_before + time.time() - t0, 1), "devices": jax.local_device_count(), kind: row}
         losses = {k[len("training/") :]: float(v) for k, v in metrics.items() if k.startswith("training/") and k != "training/sps"}
         if losses:  # PPO's own health: kl_mean, the losses, the action distribution's spread
             line["ppo"] = losses
