@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from fabrax import config
 from fabrax.bench.outdir import LOCK, OutDirError, claim
 from fabrax.bench.runner import errors, strict_json, summary_table, write
-from fabrax.fabrics.arm import check_config
+from fabrax.gains import check_config
 from fabrax.problems.mbm import parse_request
 
 PANDA_FABRIC = config.load("fabric", "panda")

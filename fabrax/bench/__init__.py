@@ -1,6 +1,21 @@
-"""Benchmark harness: the exact checker, metrics and reports."""
+"""Benchmark harness: the exact checker, metrics and reports.
 
-from fabrax.problems.checker import RESOLUTION, CheckResult, check_path, densify
-from fabrax.problems.clearance import state_clearances
+The checker's names are imported on first use (PEP 562), so that `fabrax bench` can refuse a bad
+command line before jax and the checker load."""
 
-__all__ = ["RESOLUTION", "CheckResult", "check_path", "densify", "state_clearances"]
+import importlib
+
+_EXPORTS = {
+    "RESOLUTION": "fabrax.problems.checker",
+    "CheckResult": "fabrax.problems.checker",
+    "check_path": "fabrax.problems.checker",
+    "densify": "fabrax.problems.checker",
+    "state_clearances": "fabrax.problems.clearance",
+}
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(_EXPORTS[name]), name)
+    raise AttributeError(f"module 'fabrax.bench' has no attribute '{name}'")

@@ -48,7 +48,7 @@ def check(cfg: dict) -> None:
         if isinstance(cfg[key], bool) or not isinstance(cfg[key], (int, float)) or not cfg[key] > 0:
             raise SystemExit(f"fabrax bench: {key} must be a positive number (s), got {cfg[key]!r}")
     if cfg.get("fabric") is not None:
-        from fabrax.fabrics.arm import check_config
+        from fabrax.gains import check_config
 
         try:
             check_config(cfg["fabric"])

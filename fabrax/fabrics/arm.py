@@ -21,7 +21,8 @@ import numpy as np
 
 from fabrax import validate
 from fabrax.fabrics.fabric import Fabric, Params
-from fabrax.fabrics.terms import TERMS, check_value
+from fabrax.fabrics.terms import TERMS
+from fabrax.gains import check_config
 from fabrax.robot.kinematics import frame_pose
 from fabrax.robot.robot import Robot
 
@@ -140,34 +141,6 @@ class ArmFabric(Fabric):
         near = jnp.linalg.norm(q - params["posture"]["target"]) <= self.joint_tolerance
         pose_mode = params["ee"]["weight"] > 0.5 if self._has("ee") else False
         return self.reached(params, q, qd) & (near | ~pose_mode)
-
-
-NOT_GAINS = {"type", "frame", "resolution", "name", "n"}  # term config keys that are not numbers
-VECTORS = {"offsets", "target", "target_pos", "target_quat", "point_weights"}  # term parameters that take several numbers
-
-
-def check_config(cfg: dict[str, Any]) -> None:
-    """One-line ValueErrors, naming the key, for a fabric config's values (before a robot is loaded
-    or anything compiled): every term parameter a finite number >= 0 (vectors finite), tolerances
-    finite and positive, a known energization."""
-    known = {"terms", "goal_tolerance", "goal_frame", "energization", "default_posture_weight"}
-    unknown = set(cfg) - known
-    if unknown:
-        raise ValueError(f"unknown fabric config keys {sorted(unknown)} (known: {sorted(known)})")
-    for name, spec in (cfg.get("terms") or {}).items():
-        if not isinstance(spec, dict):
-            raise ValueError(f"fabric.terms.{name} must be a mapping of the term's parameters, got {spec!r}")
-        for key, value in spec.items():
-            if key not in NOT_GAINS:
-                check_value(name, key, value, scalar=key not in VECTORS)
-    for key, value in (cfg.get("goal_tolerance") or {}).items():
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
-            raise ValueError(f"fabric.goal_tolerance.{key} must be a finite number > 0, got {value!r}")
-    w = cfg.get("default_posture_weight", 1.0)
-    if isinstance(w, bool) or not isinstance(w, (int, float)) or not np.isfinite(w) or w < 0:
-        raise ValueError(f"fabric.default_posture_weight must be a finite number >= 0, got {w!r}")
-    if cfg.get("energization", "dissipative") not in ("dissipative", "conservative"):
-        raise ValueError(f"fabric.energization must be dissipative or conservative, got {cfg.get('energization')!r}")
 
 
 def build_arm_fabric(robot: Robot, cfg: dict[str, Any], posture=None) -> ArmFabric:

@@ -27,6 +27,7 @@ from flax import struct
 
 from fabrax.fabrics import energies as E
 from fabrax.fabrics.lagrangian import eom, eom_elementwise, hd2_geometry
+from fabrax.gains import check_value
 from fabrax.robot.kinematics import PointKinematics
 from fabrax.robot.robot import Robot
 from fabrax.scene import FAR, Scene, distance_kinematics
@@ -72,25 +73,6 @@ class Term(NamedTuple):
     init: Callable[[], dict[str, Any]]
     apply: Callable[[dict[str, Any], TermInputs], Contribution]
     points: Callable[[Robot], tuple[str, jax.Array, jax.Array]] | None = None  # (key, frame (N,), local (N, 3))
-
-
-def check_value(term: str, key: str, value, scalar: bool = True) -> None:
-    """A term parameter is a finite number >= 0 (gains, masses, lengths, weights) or, where the term
-    takes a vector (targets, offsets), finite numbers; else a ValueError naming
-    `fabric.terms.<term>.<key>`: a negative barrier gain or a NaN otherwise runs a whole solve."""
-    where = f"fabric.terms.{term}.{key}"
-    if scalar:
-        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or np.ndim(value):
-            raise ValueError(f"{where} must be a number, got {value!r}")
-        if not np.isfinite(value) or value < 0:
-            raise ValueError(f"{where} must be a finite number >= 0, got {value!r}")
-        return
-    try:
-        arr = np.asarray(value, np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{where} must be numbers, got {value!r}") from None
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{where} must be finite numbers, got {value!r}")
 
 
 def _params(defaults: dict[str, Any], overrides: dict[str, Any], name: str) -> Callable[[], dict[str, Any]]:
