@@ -137,6 +137,7 @@ def section_gfcs(sizes, emit) -> None:
     from fabrax.bench import cli
     from fabrax.planners.gfcs import GFCOP, solve_batch
     from fabrax.planners.gfcs.solver import make_step
+    from fabrax.scene import common_capacity
 
     kind = "mbm" if os.environ.get("FABRAX_DATA") else "mbm_like"
     cfg = cli.compose(["method=gfcs", f"problems={kind}", "split=train", f"limit={max(1, -(-max(sizes) // 6))}", "progress=false"])
@@ -146,7 +147,7 @@ def section_gfcs(sizes, emit) -> None:
     method = cli.make_method(cfg, robot)
     setup_s = time.perf_counter() - t0
     gfcops = [GFCOP.from_problem(p) for p in problems]
-    cap = {k: -(-max(q.scene.capacity[k] for q in gfcops) // 8) * 8 for k in gfcops[0].scene.capacity}
+    cap = common_capacity([q.scene for q in gfcops])
     gfcops = [q.replace(scene=q.scene.pad(**cap)) for q in gfcops]
     gcfg = method.config
     for k in sizes:

@@ -46,8 +46,8 @@ def written(x: jax.Array) -> jax.Array:
     each consumer. XLA's CPU fusion does not fuse a reduction into the loops that consume it, so x
     goes through one: the sum of x and zeros over a leading axis of two (exact: x + 0 = x). A
     heuristic of XLA's, not a guarantee: a gather consumer took such a sum into its own fusion,
-    and a large one ran as a separate library fusion that cost more than it saved (docs/results.md,
-    stop 32). Measure."""
+    and a large one ran as a separate library fusion that cost more than it saved (docs/results.md).
+    Measure."""
     x = jnp.asarray(x)
     return jnp.sum(jnp.stack([x, jnp.zeros_like(x)]), axis=0, dtype=x.dtype)  # dtype: ints stay int32 under x64
 

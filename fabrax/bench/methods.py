@@ -19,6 +19,7 @@ import numpy as np
 
 from fabrax.problems.problem import Problem, batch
 from fabrax.robot.robot import Robot
+from fabrax.scene import common_capacity
 
 
 @dataclasses.dataclass
@@ -72,7 +73,7 @@ class FabricMethod:
             chunk = problems[start : start + self.batch_size]
             size = min(self.batch_size, 1 << (len(chunk) - 1).bit_length())  # few batch shapes: few compilations
             # one shape per batch: the largest of its scenes, rounded to 8 slots per kind (`Scene.rounded`)
-            cap = {k: -(-max(p.scene.capacity[k] for p in chunk) // 8) * 8 for k in chunk[0].scene.capacity}
+            cap = common_capacity([p.scene for p in chunk])
             padded = [dataclasses.replace(p, scene=p.scene.pad(**cap)) for p in chunk + [chunk[-1]] * (size - len(chunk))]
             b = batch(padded)
             run, compile_s = self._run.get(b)
@@ -210,7 +211,7 @@ class GFCSMethod:
         # a short last chunk is padded with copies of its last problem: one compiled size
         chunk = list(problems) + [problems[-1]] * (self.batch_size - len(problems)) if len(problems) < self.batch_size else list(problems)
         probs = [GFCOP.from_problem(p) for p in chunk]
-        cap = {k: -(-max(q.scene.capacity[k] for q in probs) // 8) * 8 for k in probs[0].scene.capacity}
+        cap = common_capacity([q.scene for q in probs])
         probs = [q.replace(scene=q.scene.pad(**cap)) for q in probs]
         keys = [self._key(p) for p in chunk]
         learned = [self._learned(robot, q, k, cfg) for q, k in zip(probs, keys)]

@@ -261,6 +261,12 @@ def load(path: str | Path, capacity: dict[str, int] | None = None) -> Scene:
     return from_dict(data, capacity)
 
 
+def common_capacity(scenes: Sequence[Scene], multiple: int = 8) -> dict[str, int]:
+    """The capacity per kind that holds every scene, rounded up to a multiple (`Scene.rounded`):
+    batches of similar scenes then share one shape, one compiled solver."""
+    return {k: -(-max(s.capacity[k] for s in scenes) // multiple) * multiple for k in scenes[0].capacity}
+
+
 def stack(scenes: Sequence[Scene]) -> Scene:
     """Stack scenes along a new leading axis, padding every kind to the largest capacity."""
     cap = {k: max(s.capacity[k] for s in scenes) for k in scenes[0].capacity}

@@ -160,8 +160,8 @@ def min_packed(values: jax.Array, offset: float = 2.0, axis: int = -1, unroll: b
     usual). For a short axis that is not the minor one (the self-collision chunks with the arms
     minor) this is one loop vectorised over the other axes; a reduction there ran over the short
     axis innermost, and its consumers recomputed it (docs/results.md). The keys are written before
-    the chain: XLA fused 8 slots' distances and keys into it and ran that as scalar code (a step
-    0.81-0.94 of the time with 8 obstacle slots, 0.95-0.98 with 24; stop 33)."""
+    the chain: XLA fused 8 slots' distances and keys into it and ran that as scalar code
+    (docs/results.md)."""
     axis = axis % values.ndim
     width = values.shape[axis]
     bits = max(1, int(width - 1).bit_length())
