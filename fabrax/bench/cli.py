@@ -42,6 +42,15 @@ def check(cfg: dict) -> None:
         raise SystemExit(f"fabrax bench: limit must be a positive integer (problems per class) or null, got {limit!r}")
     if classes is not None and not (isinstance(classes, list) and classes and all(isinstance(c, str) for c in classes)):
         raise SystemExit(f"fabrax bench: classes must be a non-empty list of class names, e.g. classes=[box,cage], got {classes!r}")
+    types = cfg.get("types")
+    if types is not None:
+        if cfg["problems"] != "mpinets":
+            raise SystemExit(f"fabrax bench: types= selects problem types of problems=mpinets, not of {cfg['problems']}")
+        if not (isinstance(types, list) and types and all(isinstance(t, str) for t in types)):
+            raise SystemExit(f"fabrax bench: types must be a non-empty list, e.g. types=[task_oriented], got {types!r}")
+    budget = cfg.get("solvable_s")
+    if budget is not None and (isinstance(budget, bool) or not isinstance(budget, (int, float)) or budget <= 0):
+        raise SystemExit(f"fabrax bench: solvable_s must be a positive number of seconds or null, got {budget!r}")
     if cfg["split"] not in ("train", "test", "all"):
         raise SystemExit(f"fabrax bench: split must be train, test or all, got {cfg['split']!r}")
     for key in ("dt", "t_max"):
@@ -56,7 +65,9 @@ def check(cfg: dict) -> None:
             raise SystemExit(f"fabrax bench: {e}") from None
 
 
-def load_problems(cfg: dict, robot) -> list:
+def load_problems(cfg: dict, robot, info: dict | None = None) -> list:
+    """The run's problems; `info` (if given) receives how a generated set was drawn (mpinets: how
+    many were drawn, dropped as unsolvable, failed to generate)."""
     kind = cfg["problems"]
     if kind == "mbm":
         from fabrax.problems.mbm import load_mbm
@@ -69,7 +80,73 @@ def load_problems(cfg: dict, robot) -> list:
         seed = cfg["seed"] + (0 if cfg["split"] != "train" else 10_000)
         problems = procedural.generate(robot, kind, cfg["classes"], n, seed, frame=cfg["frame"])
         return [with_ik_goal(robot, p, cfg["frame"]) for p in problems] if cfg.get("ik_goals") else problems
-    raise SystemExit(f"fabrax bench: problems must be mbm, mbm_like or mpinets_like, got '{kind}'")
+    if kind == "mpinets":
+        drawn = mpinets_set(cfg, robot)
+        if info is not None:
+            info.update(drawn=drawn.drawn, kept=len(drawn.problems), unsolvable=len(drawn.dropped), failed=len(drawn.failed), solvable=drawn.solvable)
+        problems = drawn.problems
+        return [with_ik_goal(robot, p, cfg["frame"]) for p in problems] if cfg.get("ik_goals") else problems
+    raise SystemExit(f"fabrax bench: problems must be mbm, mpinets, mbm_like or mpinets_like, got '{kind}'")
+
+
+def mpinets_set(cfg: dict, robot, progress: bool | None = None):
+    """The MπNets-faithful set of the run (`fabrax.problems.mpinets`): `limit` problems (default 600),
+    test seed `seed`, train seed `seed` + 10000, each kept only if OMPL RRTConnect solves it from its
+    start to the generator's goal configuration within `solvable_s` (MπNets keeps only problems a
+    global planner solves); cached under $FABRAX_CACHE/problems."""
+    from fabrax._environment import cache_root
+    from fabrax.problems import mpinets
+
+    if cfg["split"] == "all":
+        raise SystemExit("fabrax bench: problems=mpinets has a train and a test split, not all")
+    budget = cfg.get("solvable_s")
+    check, key = None, None
+    if budget:
+        from fabrax.bench.ompl import available
+
+        if "RRTConnect" not in available():
+            hint = "install OMPL (pip install -e '.[bench]') or set solvable_s=null"
+            raise SystemExit(f"fabrax bench: problems=mpinets keeps only problems OMPL RRTConnect solves; {hint}")
+        check, key = _solvable(budget), f"RRTConnect {float(budget)} s, exact checker"
+    show = cfg.get("progress", True) if progress is None else progress
+    bar = _Progress(int(cfg["limit"] or 600)) if show else None
+    seed = cfg["seed"] + (10_000 if cfg["split"] == "train" else 0)
+    try:
+        out = mpinets.generate(
+            robot, int(cfg["limit"] or 600), seed, cfg["classes"], cfg.get("types"), cfg["frame"], check, key, cache_root() / "problems", bar
+        )
+    finally:
+        if bar is not None:
+            bar.close()
+    return out
+
+
+class _Progress:
+    def __init__(self, n: int):
+        from tqdm import tqdm
+
+        self.bar = tqdm(total=n, desc="generating mpinets problems", unit="problem")
+
+    def __call__(self, kept: int, drawn: int) -> None:
+        self.bar.n = kept
+        self.bar.set_postfix(drawn=drawn, refresh=True)
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+def _solvable(budget_s: float):
+    def check(robot, p) -> bool:
+        import dataclasses
+
+        import numpy as np
+
+        from fabrax.bench.ompl import plan
+
+        path, _ = plan(robot, dataclasses.replace(p, goal_q=np.asarray(p.meta["goal_q"])), "RRTConnect", budget_s, False, 1.0 / 32.0)
+        return path is not None
+
+    return check
 
 
 def with_ik_goal(robot, p, frame: str):
@@ -79,10 +156,14 @@ def with_ik_goal(robot, p, frame: str):
     invalid (reported, not run)."""
     import dataclasses
 
+    import numpy as np
+
     from fabrax.problems.generators import ik_goal
 
     if p.goal_q is not None or p.goal_pose is None:
         return p
+    if "goal_q" in p.meta:  # the generator's own goal configuration (mpinets: the one its solvability check planned to)
+        return dataclasses.replace(p, goal_q=np.asarray(p.meta["goal_q"], np.float64))
     goal = ik_goal(robot, p, frame)
     if goal is None:
         return dataclasses.replace(p, valid=False, reason="no collision-free IK solution of the goal pose")
@@ -210,8 +291,9 @@ def _run_bench(cfg: dict, out: Path) -> list[dict]:
         method = make_method(cfg, robot)
     except (ValueError, FileNotFoundError) as e:  # e.g. a robot's sphere file read from the data folder
         raise SystemExit(f"fabrax bench: {e}{hint}") from None
+    problem_set: dict = {}
     try:
-        problems = load_problems(cfg, robot)
+        problems = load_problems(cfg, robot, problem_set)
     except (ValueError, FileNotFoundError) as e:
         raise SystemExit(f"fabrax bench: {e}{hint}") from None
     t0 = time.perf_counter()
@@ -240,6 +322,7 @@ def _run_bench(cfg: dict, out: Path) -> list[dict]:
         "source": _source(),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
         "argv": sys.argv[1:],
+        "problem_set": problem_set or None,
     }
     write(rows, out, meta)
     print(summary_table(rows))

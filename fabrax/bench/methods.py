@@ -118,11 +118,13 @@ class OMPLMethod:
     name: str = "rrtconnect"
     dt: float = 0.01
     resolution: float = 1.0 / 32.0
+    first_solution: bool = False  # optimising planners stop at their first solution (`fabrax.bench.ompl.plan`)
 
     def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]:
         from fabrax.bench.ompl import plan
 
-        return [_planned(robot, p, *plan(robot, p, self.planner, self.budget_s, self.simplify, self.resolution), self.dt) for p in problems]
+        args = (self.planner, self.budget_s, self.simplify, self.resolution, self.first_solution)
+        return [_planned(robot, p, *plan(robot, p, *args), self.dt) for p in problems]
 
 
 @dataclasses.dataclass
@@ -250,8 +252,8 @@ class RLGuideMethod:
     (20 s) have passed; a collision judged by the env's checker also ends it. `scripted="switch"`
     rolls out the env's pure-fabric baseline instead (the switch on from the first step: the fabric
     aimed at the goal pose). The trajectory is the arm's configuration at every fabric step.
-    Problems are rolled out `batch_size` at a time in one `vmap`; `reaction_ms` (in every row's
-    info) is one policy inference plus one fabric step for a single env, best of 50, on this host."""
+    Problems are rolled out `batch_size` at a time in one `vmap`; `reaction_ms` and `reaction_ms_std`
+    (in every row's info) time one action for a new scene (`reaction_ms`) on this host."""
 
     env: Any  # a FabricGuideEnv (its pool is unused: problems bring their scenes)
     act: Any = None  # the deterministic policy on one env's observations (`fabrax.rl.policy.Guide.act`)
@@ -259,7 +261,7 @@ class RLGuideMethod:
     scripted: str | None = None  # "switch": the pure-fabric baseline, no policy
     batch_size: int = 32
     _run: Any = dataclasses.field(default=None, repr=False)
-    _reaction_ms: float | None = dataclasses.field(default=None, repr=False)
+    _reaction_ms: tuple[float, float] | None = dataclasses.field(default=None, repr=False)
 
     criterion = "keypoints"
 
@@ -291,26 +293,44 @@ class RLGuideMethod:
         _, (qs, alive) = jax.lax.scan(body, (state, jnp.ones((), bool)), None, length=env.cfg.episode_steps)
         return qs, alive
 
-    def reaction_ms(self, scene, start, goal_pos, goal_quat, goal_keypoints) -> float:
-        """One policy inference plus one fabric step for one env (ms, best of 50 after compiling)."""
+    def reaction_ms(self, batch, calls: int = 100) -> tuple[float, float]:
+        """Reaction time as the thesis defines it (§4.1: the time to produce an action for the arm given
+        a new obstacle scene): mean and std (ms) over `calls` calls after compiling, each on the next
+        problem of `batch` (the solve's stacked arguments). A call builds the observation of the new
+        scene (its basis-point distances included), runs the policy and one fabric step toward its
+        targets; the scripted pure fabric runs the fabric step alone."""
         from fabrax.rollout.rollout import integrate
 
         env = self.env
-        state = jax.jit(self._begin)(scene, start, goal_pos, goal_quat, goal_keypoints)
 
         @jax.jit
-        def react(s):
+        def react(scene, start, goal_pos, goal_quat, goal_keypoints):
+            s = self._begin(scene, start, goal_pos, goal_quat, goal_keypoints)
             params, _ = env.targets(s.pipeline_state, self._action(s.obs), jax.numpy.asarray(2))
             ep = s.pipeline_state
             return integrate(env.fabric, params, ep.scene, ep.fabric_q, ep.fabric_qd, env.cfg.fabric_dt, env.cfg.integrator)[0]
 
-        jax.block_until_ready(react(state))
-        best = float("inf")
-        for _ in range(50):
+        @jax.jit
+        def fabric_step(scene, start, goal_pos, goal_quat, goal_keypoints, params):
+            return integrate(env.fabric, params, scene, start, jax.numpy.zeros_like(start), env.cfg.fabric_dt, env.cfg.integrator)[0]
+
+        n = len(batch[1])
+        one = lambda k: jax.tree.map(lambda a: a[k % n], batch)  # noqa: E731
+        if self.scripted == "switch":
+            s0 = jax.jit(self._begin)(*one(0))
+            params, _ = jax.jit(env.targets)(s0.pipeline_state, self._action(s0.obs), jax.numpy.asarray(2))
+            call = lambda args: fabric_step(*args, params)  # noqa: E731
+        else:
+            call = lambda args: react(*args)  # noqa: E731
+        jax.block_until_ready(call(one(0)))  # compile
+        times = []
+        for k in range(calls):
+            args = jax.block_until_ready(one(k + 1))  # a new scene each call, on the device before the clock starts
             t0 = time.perf_counter()
-            jax.block_until_ready(react(state))
-            best = min(best, time.perf_counter() - t0)
-        return best * 1e3
+            jax.block_until_ready(call(args))
+            times.append(time.perf_counter() - t0)
+        times = np.asarray(times) * 1e3
+        return float(times.mean()), float(times.std())
 
     def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]:
         import jax.numpy as jnp
@@ -348,7 +368,7 @@ class RLGuideMethod:
                 jax.vmap(lambda x, r: keypoints_at_pose(robot, frame, x, r))(jnp.asarray(pos), jnp.asarray(quat)),  # keypoints ride on the frame
             )
             if self._reaction_ms is None:
-                self._reaction_ms = self.reaction_ms(*jax.tree.map(lambda a: a[0], args))
+                self._reaction_ms = self.reaction_ms(args)
             run, compile_s = self._run.get(*args)
             t0 = time.perf_counter()
             qs, alive = jax.block_until_ready(run(*args))
@@ -357,7 +377,7 @@ class RLGuideMethod:
             for k, p in enumerate(chunk):
                 steps = int(alive[k].sum())
                 q = np.concatenate([np.asarray(p.start_q, np.float32)[None], qs[k, :steps].reshape(-1, qs.shape[-1])])
-                info = {"policy_steps": steps, "reaction_ms": self._reaction_ms, "batch": len(chunk)}
+                info = {"policy_steps": steps, "reaction_ms": self._reaction_ms[0], "reaction_ms_std": self._reaction_ms[1], "batch": len(chunk)}
                 out.append(Solution(q, env.cfg.fabric_dt, per, compile_s if k == 0 else 0.0, info))
         return out
 

@@ -58,8 +58,11 @@ class _Checker:
         return self.native.all_valid(dense)
 
 
-def plan(robot: Robot, problem: Problem, planner: str, budget_s: float, simplify: bool, resolution: float):
-    """A collision-free joint path (W, n) from start to the joint goal, or None; and info."""
+def plan(robot: Robot, problem: Problem, planner: str, budget_s: float, simplify: bool, resolution: float, first_solution: bool = False):
+    """A collision-free joint path (W, n) from start to the joint goal, or None; and info. With
+    `first_solution`, an optimising planner (AIT*, BIT*, RRT*) stops at its first solution instead
+    of refining it until the budget ends (success within the budget is the same; the time is the
+    time to a first solution)."""
     from ompl import base as ob
     from ompl import geometric as og
     from ompl import util as ou
@@ -100,14 +103,24 @@ def plan(robot: Robot, problem: Problem, planner: str, budget_s: float, simplify
         goal[j] = float(q1[j])
     pdef = ob.ProblemDefinition(si)
     pdef.setStartAndGoalStates(start, goal)
-    pdef.setOptimizationObjective(ob.PathLengthOptimizationObjective(si))
+    objective = ob.PathLengthOptimizationObjective(si)
+    if first_solution:
+        objective.setCostThreshold(ob.Cost(float("inf")))  # any solution satisfies the objective: the planner returns
+    pdef.setOptimizationObjective(objective)
     p = getattr(og, planner)(si)
     p.setProblemDefinition(pdef)
     p.setup()
     t0 = time.perf_counter()
     status = p.solve(budget_s)
     solve_s = time.perf_counter() - t0
-    info = {"planner": planner, "status": str(status), "solve_s": solve_s, "simplify_s": 0.0, "compile_s": compile_s}
+    info = {
+        "planner": planner,
+        "status": str(status),
+        "solve_s": solve_s,
+        "simplify_s": 0.0,
+        "compile_s": compile_s,
+        "first_solution": first_solution,
+    }
     if not pdef.hasExactSolution():
         return None, {**info, "validity_calls": check.calls, "states_checked": check.states}
     path = pdef.getSolutionPath()

@@ -76,6 +76,8 @@ def run(
         named = {method.name: s, **(s.info.pop("variants", {}) if s is not None else {})}
         for name, sol in sorted(named.items()):
             row = {"problem": p.name, "class": p.kind, "method": name, "valid_problem": p.valid, "invalid_reason": p.reason}
+            if "problem_type" in p.meta:
+                row["problem_type"] = p.meta["problem_type"]
             if p.valid:
                 row.update(evaluate(robot, p, sol.q, sol.dt, goal=goal, frame=frame, margin=margin))
                 row.update({"plan_time_s": sol.plan_time_s, "compile_s": sol.compile_s, "dt": sol.dt, "info": sol.info})
@@ -121,21 +123,33 @@ def _mean_std(values: list[float]) -> str:
     return f"{fmt(v.mean())} ± {fmt(v.std())}"
 
 
-def summary_table(rows: list[dict]) -> str:
-    """Markdown: per class and method, success and collision rates over valid problems, and the
-    mean ± std of every metric over the successful ones."""
-    keys = sorted({(r["method"], r["class"]) for r in rows})
-    head = "| method | class | valid | success % | collision % | joint % | pose % | keypoints % | " + " | ".join(METRICS) + " |"
-    lines = [head, "|" + "---|" * 2 + "---:|" * (6 + len(METRICS))]
-    for method, cls in keys:
-        sel = [r for r in rows if r["method"] == method and r["class"] == cls and r["valid_problem"]]
+def _table(rows: list[dict], by: str) -> list[str]:
+    """Markdown lines: per method and value of `by` (a row key; "all" for one row per method),
+    success and collision rates over valid problems and the mean ± std of every metric over the
+    successful ones."""
+    group = (lambda r: "all") if by == "all" else (lambda r: r.get(by, "–"))  # noqa: E731
+    keys = sorted({(r["method"], group(r)) for r in rows})
+    head = f"| method | {'class' if by == 'all' else by.replace('_', ' ')} | valid | success % | collision % | joint % | pose % | keypoints % | "
+    lines = [head + " | ".join(METRICS) + " |", "|" + "---|" * 2 + "---:|" * (6 + len(METRICS))]
+    for method, key in keys:
+        mine = [r for r in rows if r["method"] == method and group(r) == key]
+        sel = [r for r in mine if r["valid_problem"]]
         ok = [r for r in sel if r["success"]]
         n = len(sel)
         pct = lambda k: "–" if not n or any(r.get(k) is None for r in sel) else f"{100.0 * sum(bool(r[k]) for r in sel) / n:.0f}"  # noqa: E731
         cells = [_mean_std([r[m] for r in ok]) for m in METRICS]
-        total = sum(1 for r in rows if r["method"] == method and r["class"] == cls)
-        by = " | ".join(pct(k) for k in ("success_joint", "success_pose", "success_keypoints"))
-        lines.append(f"| {method} | {cls} | {n}/{total} | {pct('success')} | {pct('collision')} | {by} | " + " | ".join(cells) + " |")
+        by_criterion = " | ".join(pct(k) for k in ("success_joint", "success_pose", "success_keypoints"))
+        lines.append(f"| {method} | {key} | {n}/{len(mine)} | {pct('success')} | {pct('collision')} | {by_criterion} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def summary_table(rows: list[dict]) -> str:
+    """Markdown: per class and method (and, where rows carry one, per problem type and over all
+    problems), success and collision rates over valid problems, and the mean ± std of every metric
+    over the successful ones."""
+    lines = _table(rows, "class")
+    if any("problem_type" in r for r in rows):
+        lines += ["", *_table(rows, "problem_type"), "", *_table(rows, "all")]
     note = "success by the run's criterion; joint / pose / keypoints: success by each criterion (joint tolerance, pose tolerance, "
     note += "mean keypoint distance). Metrics are means ± std over successful problems; lengths in m (EE) and rad (C-space), times in s."
     return "\n".join(lines) + "\n\n" + note + "\n" + problems_report(rows)

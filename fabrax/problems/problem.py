@@ -30,6 +30,7 @@ class Problem:
     start_qd: np.ndarray | None = None
     valid: bool = True  # False when loaded data fails `validate`; `reason` says why
     reason: str = ""
+    meta: dict = dataclasses.field(default_factory=dict)  # generator facts, e.g. family, problem_type, goal_q (a planner's joint goal)
 
     @property
     def goal_type(self) -> str:
