@@ -68,7 +68,8 @@ def test_cma_es_best_so_far_improves(fabric_params):
     assert all(b <= a for a, b in zip(best, best[1:]))
     assert r.best_cost == best[-1] == float(r.top_cost[0]) and len(r.top_cost) == cfg.top_m
     assert np.all(np.diff(r.top_cost) >= 0)
-    cost, _ = sequence_cost(fabric, params, _problem(goal, [wall]), jnp.asarray(r.best_z), steps=cfg.steps, patience=cfg.patience)
+    kw = dict(steps=cfg.steps, patience=cfg.patience, via_tolerance=cfg.via_tolerance, final_pose=cfg.final_pose, length_weight=cfg.length_weight)
+    cost, _ = sequence_cost(fabric, params, _problem(goal, [wall]), jnp.asarray(r.best_z), **kw)
     assert float(cost) == pytest.approx(r.best_cost, rel=1e-5)  # the reported cost is the candidate's cost
     with pytest.raises(ValueError, match="samples"):
         solve(fabric, params, _problem(goal), jax.random.PRNGKey(0), cfg, samples=jnp.zeros((3, 1, 7)))
@@ -285,3 +286,11 @@ def test_reactive_study_refuses_a_saved_run_with_other_settings(tmp_path):
         experiment.saved_rows({**cfg, "fabric": {**saved["fabric"], "energization": "none"}}, tmp_path)
     with pytest.raises(SystemExit, match="no results.json"):
         experiment.saved_rows(cfg, tmp_path / "missing")
+
+
+def test_config_defaults_are_the_method_preset():
+    """One set of defaults: `GFCSConfig()` is what `fabrax bench method=gfcs` runs."""
+    from fabrax.bench.cli import compose, gfcs_config
+
+    cfg = compose(["method=gfcs"])
+    assert gfcs_config(cfg["method"], cfg) == GFCSConfig(dt=cfg["dt"], t_max=cfg["t_max"]) == GFCSConfig()

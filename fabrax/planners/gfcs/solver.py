@@ -26,6 +26,10 @@ from fabrax.rollout.trajectory import Trajectory
 
 @dataclasses.dataclass(frozen=True)
 class GFCSConfig:
+    """GFCS solver settings. The defaults are the `gfcs` method preset (configs/method/gfcs.yaml,
+    checked equal by tests/test_gfcs.py): `GFCSConfig()` is the planner of the README's tables;
+    `length_weight=0, direct=False, via_tolerance=None` is gfcs_paper's eq. 4 as written."""
+
     n_commands: int = 1  # intermediate commands; the goal is appended ("length two" = 1)
     population: int = 64  # N_samp
     batches: int = 5  # N_iters
@@ -35,12 +39,12 @@ class GFCSConfig:
     t_max: float = 7.0  # per command
     penalty: float = 100.0  # M: final goal not reached
     collision_penalty: float = 100.0
-    via_tolerance: float | None = None  # rad: an intermediate command counts as passed within this (None: the goal tolerance)
+    via_tolerance: float | None = 0.5  # rad: an intermediate command counts as passed within this (None: the goal tolerance)
     patience: float | None = 1.0  # s without progress toward a command ends its segment, charged t_max (None: off)
     stop_after: float | None = 0.5  # stop a batch once this fraction of it arrived cleanly (None: run all to the end)
     final_pose: bool = True  # the goal segment also attracts the hand to its pose at the goal (`population_cost`)
-    length_weight: float = 0.0  # s per metre of goal-frame path added to the cost (0: gfcs_paper eq. 4)
-    direct: bool = False  # the first batch's first candidate commands the start: the fabric aimed straight at the goal
+    length_weight: float = 1.0  # s per metre of goal-frame path added to the cost (0: gfcs_paper eq. 4)
+    direct: bool = True  # the first batch's first candidate commands the start: the fabric aimed straight at the goal
 
     @property
     def enough(self) -> int | None:
