@@ -326,6 +326,25 @@ def test_a_problem_a_method_refuses_fails_alone(panda):
     assert rows["demo/0"]["reached"] and rows["demo/2"]["reached"] and "error" not in rows["demo/0"]["info"]
 
 
+def test_progress_says_the_first_batch_compiles(panda, capsys):
+    """The bar cannot move while the first batch compiles: its postfix says what is happening."""
+    from fabrax.bench.methods import Solution
+    from fabrax.bench.runner import run
+    from fabrax.problems.generators import demo_problem
+
+    base = demo_problem(panda)
+    problems = [dataclasses.replace(base, name=f"demo/{k}") for k in range(4)]
+
+    class Straight:
+        name, batch_size, dt = "straight", 2, 0.01
+
+        def solve(self, robot, part):
+            return [Solution(np.linspace(p.start_q, p.goal_q, 50), self.dt, 0.1) for p in part]
+
+    run(Straight(), panda, problems, progress=True)
+    assert "compiling and solving the first 2" in capsys.readouterr().err
+
+
 def test_a_stopped_run_resumes_and_refuses_other_settings(panda, tmp_path):
     """The runner saves solutions after every batch; resume=True solves only what is missing and
     refuses a checkpoint written with other settings."""
