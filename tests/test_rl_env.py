@@ -213,3 +213,25 @@ def test_bad_config_fails_before_any_jit(env):
     small = env_config({"scenes": {"generated": {"shelves": 1}, "capacity": {"cuboids": 4}}})
     with pytest.raises(ValueError, match=r"shelves/0000.*capacity.cuboids=4"):
         build_pool(env.robot, small)
+
+
+def test_pose_goals_keep_the_generators_goal_configuration(env):
+    """A pose-goal problem carrying its generator's goal configuration (MπNets-faithful problems:
+    meta["goal_q"]) enters the pool with that configuration, not another IK branch; the count of
+    such problems is a checked setting."""
+    from fabrax.problems.problem import Problem
+    from fabrax.robot.kinematics import frame_pose as pose_of
+
+    scene = jax.tree.map(lambda a: a[0], env.pool.scene)
+    start, goal = np.asarray(env.pool.configs[0, 0]), np.asarray(env.pool.configs[0, 1])
+    hand = pose_of(env.robot, jnp.asarray(goal), "panda_hand")
+    p = Problem(start, scene, goal_pose=(np.asarray(hand.translation()), np.asarray(hand.rotation().wxyz)), meta={"goal_q": goal})
+    none = {"shelves": 0, "cuboid_forest": 0, "flying_cuboids": 0}
+    assert env_config({"scenes": {"generated": none, "mpinets": 3}}).scenes.mpinets == 3
+    with pytest.raises(ValueError, match="env.scenes.mpinets"):
+        env_config({"scenes": {"mpinets": -1}})
+    cfg = env_config({"scenes": {"generated": {"shelves": 0, "cuboid_forest": 0, "flying_cuboids": 1}, "configs_per_scene": 2}})
+    pool = build_pool(env.robot, cfg, [p])
+    np.testing.assert_allclose(pool.start_q[0], start, atol=1e-6)
+    np.testing.assert_allclose(pool.goal_q[0], goal, atol=1e-6)
+    assert bool(pool.dataset[0]) and not bool(pool.dataset[1])

@@ -48,6 +48,18 @@ def test_the_tiny_preset_is_the_tests_settings():
     assert app == normalise(TINY)
 
 
+@pytest.mark.parametrize("preset", sorted(p.stem for p in (Path(__file__).parents[1] / "configs" / "rl").glob("*.yaml")))
+def test_every_preset_composes_to_valid_settings(preset):
+    """Each configs/rl preset passes the settings checks that run before any environment is built."""
+    from hydra import compose, initialize_config_dir
+
+    from fabrax import config
+
+    with initialize_config_dir(config_dir=str(config.config_dir()), version_base=None):
+        cfg = config.resolve(compose("rl", overrides=[f"rl={preset}"]))
+    normalise({k: cfg[k] for k in ("robot", "fabric", "env", "eval_scenes", "network", "curriculum", "ppo")})
+
+
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     """A tiny training run: (run directory, initial parameters, trained parameters)."""

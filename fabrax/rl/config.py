@@ -23,6 +23,7 @@ class ScenesConfig:
     generated: tuple[tuple[str, int], ...] = (("cuboid_forest", 4), ("shelves", 4), ("flying_cuboids", 4))
     procedural: tuple[tuple[str, int], ...] = ()  # (class, count) of fabrax.problems.procedural (MBM-like, MPiNets-like) problems
     procedural_seed: int = 10_000  # their generator seed: 10000 is `fabrax bench split=train`'s; the test split (seed 0) is never trained on
+    mpinets: int = 0  # MπNets-faithful problems (fabrax.problems.mpinets, all families and types) drawn with procedural_seed
     configs_per_scene: int = 8  # collision-free configurations sampled per scene for the sampled start/goal modes
     margin: float = 0.02  # m: clearance of sampled configurations
     modes: tuple[float, float, float, float] = (0.55, 0.15, 0.15, 0.15)  # Table 3.1: (pre, pre), (pre, sampled), (sampled, pre), (sampled, sampled)
@@ -102,6 +103,11 @@ def scenes_config(cfg: dict[str, Any] | None) -> ScenesConfig:
         from fabrax.problems.procedural import MBM_LIKE, MPINETS_LIKE
 
         out["procedural"] = _counts(cfg["procedural"], MBM_LIKE + MPINETS_LIKE, "env.scenes.procedural", "classes")
+    if "mpinets" in cfg:
+        n = cfg["mpinets"]
+        if not isinstance(n, int) or isinstance(n, bool) or n < 0:
+            raise ValueError(f"env.scenes.mpinets must be a count >= 0, got {n!r}")
+        out["mpinets"] = n
     if "procedural_seed" in cfg:
         out["procedural_seed"] = int(cfg["procedural_seed"])
         if out["procedural_seed"] == 0:
@@ -123,8 +129,8 @@ def scenes_config(cfg: dict[str, Any] | None) -> ScenesConfig:
     if "seed" in cfg:
         out["seed"] = int(cfg["seed"])
     sc = ScenesConfig(**out)
-    if not sc.mbm_classes and not any(n for _, n in sc.generated + sc.procedural):
-        raise ValueError("env.scenes has no scene: give mbm_classes or a generated or procedural count > 0")
+    if not sc.mbm_classes and not sc.mpinets and not any(n for _, n in sc.generated + sc.procedural):
+        raise ValueError("env.scenes has no scene: give mbm_classes, mpinets or a generated or procedural count > 0")
     return sc
 
 

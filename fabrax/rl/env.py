@@ -255,8 +255,10 @@ class FabricGuideEnv(Env):
 def make_env(cfg: EnvConfig | dict | None = None, robot: str | dict = "panda", fabric: str | dict = "panda", data_dir=None) -> FabricGuideEnv:
     """The environment from configs: robot and fabric by config name (configs/robot, configs/fabric),
     `cfg` an `EnvConfig` or its mapping. MBM train problems (1-50) of `cfg.scenes.mbm_classes` are
-    read from `data_dir` (default $FABRAX_DATA); procedural problems of `cfg.scenes.procedural` are
-    generated with `procedural_seed` (10000: the benchmark's train split)."""
+    read from `data_dir` (default $FABRAX_DATA); procedural problems of `cfg.scenes.procedural` and
+    the `cfg.scenes.mpinets` MπNets-faithful problems (their own starts and goal configurations,
+    cached under $FABRAX_CACHE/problems) are generated with `procedural_seed` (10000: the benchmark's
+    train split)."""
     cfg = cfg if isinstance(cfg, EnvConfig) else env_config(cfg)
     rob = load_robot(robot)
     arm, params = load_fabric(rob, fabric)
@@ -264,4 +266,10 @@ def make_env(cfg: EnvConfig | dict | None = None, robot: str | dict = "panda", f
     for cls, n in cfg.scenes.procedural:
         family = "mpinets_like" if cls in MPINETS_LIKE else "mbm_like"
         problems += generate(rob, family, [cls], n, seed=cfg.scenes.procedural_seed, frame=arm.goal_frame) if n else []
+    if cfg.scenes.mpinets:
+        from fabrax._environment import cache_root
+        from fabrax.problems import mpinets
+
+        drawn = mpinets.generate(rob, cfg.scenes.mpinets, cfg.scenes.procedural_seed, frame=arm.goal_frame, cache_dir=cache_root() / "problems")
+        problems += drawn.problems
     return FabricGuideEnv(arm, params, build_pool(rob, cfg, problems, arm.goal_frame), cfg)

@@ -65,8 +65,9 @@ def _fit(scene: Scene, capacity: dict[str, int], name: str) -> Scene:
 
 def build_pool(robot: Robot, cfg: EnvConfig, problems: list[Problem] = (), frame: str = "panda_hand") -> ScenePool:
     """A `ScenePool` of the dataset `problems` (e.g. `load_mbm(split='train')`; invalid ones are
-    skipped; a pose goal of `frame` becomes the collision-free IK solution nearest the start, and a
-    problem without one is skipped) and the generated scenes of `cfg.scenes`."""
+    skipped; a pose goal becomes the generator's goal configuration where the problem carries one
+    (`meta["goal_q"]`, MπNets-faithful problems), else the collision-free IK solution of `frame`
+    nearest the start, and a problem without one is skipped) and the generated scenes of `cfg.scenes`."""
     sc = cfg.scenes
     capacity = dict(sc.capacity)
     rng = np.random.default_rng(sc.seed)
@@ -74,7 +75,7 @@ def build_pool(robot: Robot, cfg: EnvConfig, problems: list[Problem] = (), frame
     for p in problems:
         if not p.valid:
             continue
-        goal = p.goal_q
+        goal = p.goal_q if p.goal_q is not None else (p.meta or {}).get("goal_q")
         if goal is None:  # a pose goal: the pool stores goals as configurations
             goal = generators.ik_goal(robot, p, frame, rng)
             if goal is None:
