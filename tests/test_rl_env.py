@@ -235,3 +235,31 @@ def test_pose_goals_keep_the_generators_goal_configuration(env):
     np.testing.assert_allclose(pool.start_q[0], start, atol=1e-6)
     np.testing.assert_allclose(pool.goal_q[0], goal, atol=1e-6)
     assert bool(pool.dataset[0]) and not bool(pool.dataset[1])
+
+
+def test_cramped_dataset_scenes_sample_near_their_start_and_goal(env, monkeypatch):
+    """Where uniform sampling finds too few valid configurations (a start inside a drawer), a
+    dataset problem's sampled-mode configurations come from near its start and goal, valid."""
+    from fabrax.problems import generators
+    from fabrax.problems.problem import Problem
+
+    uniform = generators.sample_configs
+
+    def cramped(robot, scene, n, rng, margin=0.02, around=None, spread=1.0, **kw):
+        if around is None:
+            raise ValueError("could not find valid configurations")
+        return uniform(robot, scene, n, rng, margin=margin, around=around, spread=spread, **kw)
+
+    monkeypatch.setattr(generators, "sample_configs", cramped)
+    scene = jax.tree.map(lambda a: a[0], env.pool.scene)
+    start, goal = np.asarray(env.pool.configs[0, 0]), np.asarray(env.pool.configs[0, 1])
+    none = {"shelves": 0, "cuboid_forest": 0, "flying_cuboids": 0}
+    cfg = env_config({"scenes": {"generated": none, "mpinets": 1, "configs_per_scene": 4}})
+    pool = build_pool(env.robot, cfg, [Problem(start, scene, goal_q=goal)])
+    qs = np.asarray(pool.configs[0])
+    span = np.asarray(env.robot.upper) - np.asarray(env.robot.lower)
+    assert np.all(np.abs(qs[:2] - start) <= 0.125 * span + 1e-6) and np.all(np.abs(qs[2:] - goal) <= 0.125 * span + 1e-6)
+    e, s, ok = state_clearances(env.robot, scene, jnp.asarray(qs, jnp.float32))
+    assert np.all(np.asarray(e) > 0) and np.all(np.asarray(s) > 0) and np.all(np.asarray(ok))
+    with pytest.raises(ValueError, match="could not find"):
+        build_pool(env.robot, env_config({"scenes": {"generated": {"shelves": 1}}}))

@@ -63,6 +63,25 @@ def _fit(scene: Scene, capacity: dict[str, int], name: str) -> Scene:
     return Scene(used_only(scene.cuboids), used_only(scene.cylinders), used_only(scene.spheres), empty_cloud)
 
 
+def _configs(robot: Robot, scene: Scene, sc, rng, name: str, start, goal) -> np.ndarray:
+    """`sc.configs_per_scene` valid configurations for the sampled modes: uniform within the limits,
+    else, in a scene too cramped for that (a dataset problem inside shelves or drawers), half near
+    its start and half near its goal (a quarter of each joint's range around them, 5 mm clear)."""
+    n = sc.configs_per_scene
+    try:
+        return generators.sample_configs(robot, scene, n, rng, margin=sc.margin)
+    except ValueError:
+        if start is None:
+            raise ValueError(f"scene '{name}': could not find {n} valid configurations") from None
+    try:
+        margin = min(sc.margin, 0.005)  # the clearance MπNets-faithful starts and goals are drawn with
+        halves = ((start, n - n // 2), (goal, n // 2))
+        near = [generators.sample_configs(robot, scene, k, rng, margin=margin, around=q, spread=0.25) for q, k in halves]
+    except ValueError:
+        raise ValueError(f"scene '{name}': could not find {n} valid configurations, even near its start and goal") from None
+    return np.concatenate(near)
+
+
 def build_pool(robot: Robot, cfg: EnvConfig, problems: list[Problem] = (), frame: str = "panda_hand") -> ScenePool:
     """A `ScenePool` of the dataset `problems` (e.g. `load_mbm(split='train')`; invalid ones are
     skipped; a pose goal becomes the generator's goal configuration where the problem carries one
@@ -89,7 +108,7 @@ def build_pool(robot: Robot, cfg: EnvConfig, problems: list[Problem] = (), frame
     scenes, starts, goals, configs, dataset, names = [], [], [], [], [], []
     for name, scene, start, goal, is_data in rows:
         scene = _fit(scene, capacity, name)
-        qs = generators.sample_configs(robot, scene, sc.configs_per_scene, rng, margin=sc.margin)
+        qs = _configs(robot, scene, sc, rng, name, start, goal)
         scenes.append(scene)
         starts.append(qs[0] if start is None else start)
         goals.append(qs[1] if goal is None else goal)
