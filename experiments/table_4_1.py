@@ -70,9 +70,9 @@ def collect(runs: list[Path]) -> dict:
             entry["type"] = {t: rates([r for r in rows if r.get("problem_type") == t]) for t in TYPES}
             # MπNets' criterion (within 1 cm and 15°, no collision); not for the RL env's methods, whose
             # episodes end once the keypoints are within 0.08 m (thesis §3.4.5)
-            stops_at_keypoints = data["meta"]["config"]["method"].get("type") == "rl_guide"
-            entry["pose"] = {} if stops_at_keypoints else {"all": rates(rows, "success_pose")}
-            if not stops_at_keypoints:
+            entry["pose"] = {}
+            if data["meta"]["config"]["method"].get("type") != "rl_guide":
+                entry["pose"] = {"all": rates(rows, "success_pose")}
                 entry["pose"] |= {t: rates([r for r in rows if r.get("problem_type") == t], "success_pose") for t in TYPES}
             methods[name] = entry
     return {"methods": methods, "runs": meta, "thesis": THESIS}

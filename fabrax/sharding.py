@@ -81,8 +81,8 @@ def per_device(fn, m: Mesh | None = None):
     leading axis) run by each device on its own share (`jax.shard_map`). Nothing in `fn` crosses
     devices: a batch left to GSPMD got cross-device collectives inside the fabric step (an all-reduce
     for every round of a vmapped `while_loop`'s test, all-gathers around the self-collision search's
-    gathers), and two CPU devices together stepped 1,024 arms at 68,000-74,000 arm-steps/s where one
-    core alone stepped 64 at 105,000-123,000 (now 202,000-238,000; docs/results.md). A batch whose
+    gathers), which synchronised the devices at every step (experiments/bench_fabric_step.py
+    measures the rate on one and two devices). A batch whose
     size does not divide by the device count runs whole, left to GSPMD (`batched` pads it)."""
 
     def run(*args):
@@ -102,7 +102,7 @@ def batched(fn, sub_batch: int | None = None):
     `sub_batch` arms (`lax.map`).
 
     Large batches are memory-bound on a CPU: a sub-batch keeps each kernel's working set in cache
-    (1024 fabric arms: 1.36x the arm-steps/s, experiments/bench_fabric_step.py). Results are `fn`'s;
+    (experiments/bench_fabric_step.py --chunk measures it). Results are `fn`'s;
     a share that does not divide into sub-batches runs whole."""
 
     def local(*args):  # one device's share; sub-batch i takes its arms [i c, (i + 1) c)

@@ -46,8 +46,8 @@ def written(x: jax.Array) -> jax.Array:
     each consumer. XLA's CPU fusion does not fuse a reduction into the loops that consume it, so x
     goes through one: the sum of x and zeros over a leading axis of two (exact: x + 0 = x). A
     heuristic of XLA's, not a guarantee: a gather consumer took such a sum into its own fusion,
-    and a large one ran as a separate library fusion that cost more than it saved (docs/results.md).
-    Measure."""
+    and a large one ran as a separate library fusion that cost more than it saved. Measure
+    (experiments/ab_fabric_step.py)."""
     x = jnp.asarray(x)
     return jnp.sum(jnp.stack([x, jnp.zeros_like(x)]), axis=0, dtype=x.dtype)  # dtype: ints stay int32 under x64
 
@@ -55,6 +55,5 @@ def written(x: jax.Array) -> jax.Array:
 def batch_minor(x: jax.Array) -> jax.Array:
     """x (B, ...) as (..., B), `written`: the batch becomes the minor axis, along which XLA on CPU
     vectorises (e.g. gathers of whole rows of arms, minima across rows). A plain transpose is fused
-    into its consumers, which then read every element with a stride (the batched step with the
-    self-collision search ran 1.19x slower so)."""
+    into its consumers, which then read every element with a stride."""
     return written(jnp.moveaxis(x, 0, -1))

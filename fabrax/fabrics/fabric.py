@@ -99,8 +99,7 @@ class Fabric:
                 # recomputed the points' kinematics there with strided reads (e.g. the end-effector's
                 # 3 points in the energization's fusion). The Jacobians of a large set (the spheres)
                 # stay a view: written, they went through a library fusion that cost more than it
-                # saved. Writing the sets: a step 0.86-0.90 of the time; the spheres' Jacobians a
-                # view again: 0.91-0.99 of that (docs/results.md).
+                # saved (experiments/ab_fabric_step.py compares such variants).
                 jac = allk.jac[..., sl]
                 kin[key] = allk._replace(
                     x=written(allk.x[:, sl]),

@@ -92,8 +92,7 @@ def _spheres(robot: Robot):
     """The collision spheres as a point set, padded to a multiple of SPHERE_LANES with copies of
     sphere 0 that the obstacle term masks (`_sphere_gaps`). XLA on CPU vectorises the per-sphere
     arithmetic (the scene search, the pullbacks) along the spheres, 16 float32 lanes at a time, and
-    runs a remainder as scalar code: padded, a fabric step took 0.87-0.98 of the time (1-256 arms,
-    panda and panda_mbm; docs/results.md)."""
+    runs a remainder as scalar code, which the padding avoids."""
     extra = -robot.n_spheres % SPHERE_LANES if robot.n_spheres else 0
     pad = lambda a: jnp.concatenate([a, jnp.broadcast_to(a[:1], (extra,) + a.shape[1:])])  # noqa: E731
     return "spheres", pad(robot.sphere_frame), pad(robot.sphere_local)
@@ -424,10 +423,9 @@ def closest_link_pairs(robot: Robot, x: jax.Array) -> tuple[jax.Array, jax.Array
     both by packed argmins (`scene.sdf.min_packed`, whose keys also give each chunk's minimum: a
     gather of it made XLA recompute the gaps). The gaps are computed in the chunks' layout
     (sphere indices composed at trace time): gathering per-pair gaps into chunks made XLA recompute
-    each gap through two levels of indices, 7-9 % of a batched step. The work grows with the
-    checked pairs alone: a dense search over all spheres of both links was 3x slower with the
-    MotionBenchMaker sphere set, where XLA fused its minima into a gather that recomputed them per
-    link pair (docs/results.md). The self-collision term runs the same search arms-minor under
+    each gap through two levels of indices. The work grows with the checked pairs alone: a dense
+    search over all spheres of both links was slower, as XLA fused its minima into a gather that
+    recomputed them per link pair. The self-collision term runs the same search arms-minor under
     `jax.vmap` (`_closest_minor`).
     """
     if robot.pair_i.shape[0] == 0:
@@ -528,8 +526,8 @@ def _self_collision_fn(revolute: tuple, link: bool):
     search gathered single floats and the pullback's sums over the pairs ran as scalar code.
     With the arms minor (centres transposed once, `soa.batch_minor`) the search gathers whole rows
     of arms, the sums add rows, and the rows u_a come from the joint axes (`_pair_rows`) rather
-    than from Jacobian columns gathered per pair. A batched fabric step took 0.73-0.79 of the time
-    (64-256 arms, panda and panda_mbm; experiments/bench_arms_minor.py). One arm, and derivatives (a custom_vmap
+    than from Jacobian columns gathered per pair (experiments/bench_arms_minor.py measures both
+    layouts). One arm, and derivatives (a custom_vmap
     has no reverse mode), keep the per-arm code.
     """
 

@@ -83,10 +83,13 @@ def _counts(value, known, where: str, what: str) -> tuple[tuple[str, int], ...]:
     bad = set(counts) - set(known)
     if bad:
         raise ValueError(f"unknown {where} {what} {sorted(bad)} ({what}: {', '.join(known)})")
-    for k, n in counts.items():
-        if not isinstance(n, int) or isinstance(n, bool) or n < 0:
-            raise ValueError(f"{where}.{k} must be a count >= 0, got {n!r}")
-    return tuple(counts.items())
+    return tuple((k, _count(f"{where}.{k}", n)) for k, n in counts.items())
+
+
+def _count(name: str, n):
+    if not isinstance(n, int) or isinstance(n, bool) or n < 0:
+        raise ValueError(f"{name} must be a count >= 0, got {n!r}")
+    return n
 
 
 def scenes_config(cfg: dict[str, Any] | None) -> ScenesConfig:
@@ -104,10 +107,7 @@ def scenes_config(cfg: dict[str, Any] | None) -> ScenesConfig:
 
         out["procedural"] = _counts(cfg["procedural"], MBM_LIKE + MPINETS_LIKE, "env.scenes.procedural", "classes")
     if "mpinets" in cfg:
-        n = cfg["mpinets"]
-        if not isinstance(n, int) or isinstance(n, bool) or n < 0:
-            raise ValueError(f"env.scenes.mpinets must be a count >= 0, got {n!r}")
-        out["mpinets"] = n
+        out["mpinets"] = _count("env.scenes.mpinets", cfg["mpinets"])
     if "procedural_seed" in cfg:
         out["procedural_seed"] = int(cfg["procedural_seed"])
         if out["procedural_seed"] == 0:

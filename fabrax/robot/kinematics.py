@@ -77,8 +77,7 @@ def point_kinematics(robot, q, qd, frame, local) -> PointKinematics:
     the angular velocity of joint i's frame and od_i the velocity of its
     origin. That sum runs over the joint origins only; each point takes its
     frame's rigid-body motion (velocity, angular velocity and acceleration):
-    2-3 cross products per point instead of a sum over its joints (a fabric
-    step 0.82-0.89 of the time, 1-256 arms, docs/results.md). Agrees with
+    2-3 cross products per point instead of a sum over its joints. Agrees with
     nested forward-mode autodiff of `points` (tested).
     """
     r, t = frame_transforms(robot, q)

@@ -218,8 +218,8 @@ def rollout_sequence(
     shared: the parameters that every segment shares; params_seq then holds only
     those that change (a partial tree of the same nested keys, e.g. the goal
     terms' from `ArmFabric.aimed`). The shared ones stay constants of the
-    compiled step, which XLA folds: a step with every parameter per arm ran
-    9-15 % slower (docs/results.md).
+    compiled step, which XLA folds (a step with every parameter per arm is
+    slower).
     """
     validate.vector("q0", q0, fabric.robot.dof)
     validate.vector("qd0", qd0, fabric.robot.dof)
@@ -259,9 +259,8 @@ def rollout_population(
     are returned as not reached, with their unfinished segments charged the
     whole budget. enough=None runs every arm to its end. patience, via: as `rollout_sequence`.
     shrink: once at most 1/shrink of the population still runs, those arms go on alone as a
-    smaller batch (`fabrax.shrink`; 1: never), so that finished arms cost no more steps. 2 (64, 32,
-    16 arms) took 0.814 of the CPU time of 4 (64, 16) for GFCS's first batch on MBM train problems
-    (0.82-0.87 in three runs that also went on to 8), with the same costs (docs/results.md).
+    smaller batch (`fabrax.shrink`; 1: never), so that finished arms cost no more steps; 2 halves
+    the batch (64, 32, 16 arms), with the same costs as 4.
     shared: the parameters common to every arm and segment, unbatched; params_seqs
     then holds only those that vary (as `rollout_sequence`).
     """
@@ -308,9 +307,8 @@ def reach(
     (`posture_reached`); with `settle` (rad/s) the test also needs every joint
     slower than that, so that a rollout ends at rest, not passing through the goal.
     Returns a batched `Trajectory`. The problems split over the local devices, and a device's share
-    larger than `sub_batch` runs as consecutive sub-batches of that size (`fabrax.sharding.batched`):
-    1,024 arms on two CPU devices stepped at 1.11-1.12x the rate in sub-batches of 64 as of 128
-    (experiments/bench_fabric_step.py, docs/results.md).
+    larger than `sub_batch` runs as consecutive sub-batches of that size (`fabrax.sharding.batched`;
+    a whole batch overflows the CPU's cache; experiments/bench_fabric_step.py --chunk measures it).
     """
     if stop not in ("goal", "posture"):
         raise ValueError(f"stop must be 'goal' or 'posture', got '{stop}'")

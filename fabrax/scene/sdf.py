@@ -159,9 +159,8 @@ def min_packed(values: jax.Array, offset: float = 2.0, axis: int = -1, unroll: b
     memory once, for axes of at most UNROLL_MAX entries (longer ones, e.g. point clouds, reduce as
     usual). For a short axis that is not the minor one (the self-collision chunks with the arms
     minor) this is one loop vectorised over the other axes; a reduction there ran over the short
-    axis innermost, and its consumers recomputed it (docs/results.md). The keys are written before
-    the chain: XLA fused 8 slots' distances and keys into it and ran that as scalar code
-    (docs/results.md)."""
+    axis innermost, and its consumers recomputed it. The keys are written before the chain: XLA
+    fused the slots' distances and keys into it and ran that as scalar code."""
     axis = axis % values.ndim
     width = values.shape[axis]
     bits = max(1, int(width - 1).bit_length())
@@ -202,10 +201,9 @@ def nearest_distance(scene: Scene, x: jax.Array, xd: jax.Array) -> NearestDistan
     Every (point, slot) distance is computed (values only); the derivatives are
     then evaluated once per point, against its nearest slot of each kind. The
     nearest slot is a chain of elementwise minima over the slots' rows
-    (`min_packed(unroll=True)`), vectorised along the points: a batched step
-    0.95-0.98 of the time of a reduction over the slots. That reduction
-    vectorised only when the slot count was a multiple of the vector width
-    (other counts, e.g. 11, ran as scalar code, 2-6x slower per slot), so the
+    (`min_packed(unroll=True)`), vectorised along the points. A reduction over
+    the slots vectorised only when the slot count was a multiple of the vector
+    width (other counts ran as scalar code), so the
     slots are padded to a multiple of LANES here (masked); with the chain the
     padding measured neutral on a 20-cuboid scene and stays.
     """

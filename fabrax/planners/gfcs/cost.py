@@ -40,9 +40,8 @@ class GFCOP:
         """From a `fabrax.problems.Problem` with a joint goal. capacity: the scene padded to it
         (e.g. `COMMON_CAPACITY`: every problem runs one compiled solver); None: its own capacity
         rounded up to multiples of 8 (`Scene.rounded`), one compilation per size of scene. Every
-        slot costs distance evaluations at every step of every candidate: on the 56 common slots a
-        population rollout took 1.03-1.41x as long on the MBM train scenes
-        (experiments/bench_scene_padding.py)."""
+        slot costs distance evaluations at every step of every candidate
+        (experiments/bench_scene_padding.py measures the padding's cost)."""
         if p.goal_q is None:
             raise ValueError(f"{p.name}: GFCS optimises joint-space commands toward a joint goal; this problem has a pose goal")
         qd = p.start_qd if p.start_qd is not None else np.zeros(len(p.start_q))
