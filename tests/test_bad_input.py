@@ -117,6 +117,50 @@ def test_a_folder_is_held_by_one_run_and_a_finished_run_is_kept(tmp_path):
         pass
 
 
+segment = st.text(st.characters(whitelist_categories=("Ll", "Lu", "Nd"), whitelist_characters=" -_.é"), min_size=1, max_size=8).filter(
+    lambda t: t not in (".", "..")
+)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    parts=st.lists(segment, min_size=1, max_size=3),
+    blocker=st.one_of(st.none(), st.integers(0, 2)),
+    prior=st.sampled_from([None, "results.json", "solutions.pkl", "live lock", "dead lock"]),
+    resume=st.booleans(),
+)
+def test_claim_of_any_output_path_succeeds_or_refuses_in_one_line(tmp_path_factory, parts, blocker, prior, resume):
+    """Property over output paths: a file anywhere on the path, a live run's lock, an earlier run's
+    results (without resume) each give one OutDirError line naming out=; every other path is claimed,
+    created, locked by this process while held and released after."""
+    root = tmp_path_factory.mktemp("out")
+    out = root.joinpath(*parts)
+    blocked = blocker is not None and blocker < len(parts)
+    if blocked:
+        at = root.joinpath(*parts[: blocker + 1])
+        at.parent.mkdir(parents=True, exist_ok=True)
+        at.write_text("x")
+    elif prior is not None:
+        out.mkdir(parents=True)
+        if prior in EARLIER_FILES:
+            (out / prior).write_text("{}")
+        else:
+            (out / LOCK).write_text(str(os.getpid() if prior == "live lock" else DEAD_PID))
+    refused = blocked or prior == "live lock" or (prior in EARLIER_FILES and not resume)
+    try:
+        with claim(out, resume=resume):
+            assert not refused and out.is_dir() and int((out / LOCK).read_text()) == os.getpid()
+    except OutDirError as e:
+        assert refused, str(e)
+        assert str(e).startswith(f"out={root}") and "\n" not in str(e)
+    else:
+        assert not (out / LOCK).exists()
+
+
+EARLIER_FILES = ("results.json", "solutions.pkl")
+DEAD_PID = int(Path("/proc/sys/kernel/pid_max").read_text()) if Path("/proc/sys/kernel/pid_max").exists() else 2**22
+
+
 def test_two_runs_into_one_folder(tmp_path):
     """The second `fabrax bench` into a folder that a first run finished is refused; the first run's
     results stay."""
@@ -189,6 +233,7 @@ goal_constraints:
 
 
 def test_moveit_pose_goal_requests_parse_and_out_of_reach_goals_are_invalid(panda):
+    from fabrax.problems.generators import flag_unreachable
     from fabrax.problems.problem import Problem, flag
     from fabrax.scene import empty
 
@@ -203,6 +248,11 @@ def test_moveit_pose_goal_requests_parse_and_out_of_reach_goals_are_invalid(pand
     assert not far.valid and "out of its reach" in far.reason
     near = flag(panda, Problem(start_q=start, scene=empty(), goal_pose=pose, name="near"))
     assert near.valid, near.reason
+    assert flag_unreachable(panda, near, "panda_hand").valid  # IK reaches it
+    inside = flag(panda, Problem(start_q=start, scene=empty(), goal_pose=(np.array([0.0, 0.0, 0.1]), pose[1]), name="inside"))
+    assert inside.valid  # within reach: the distance check passes it
+    inside = flag_unreachable(panda, inside, "panda_hand")  # the hand would sit inside the arm's own base
+    assert not inside.valid and "inside.goal_pose: no collision-free IK solution" in inside.reason
 
 
 def test_a_malformed_mbm_request_is_one_invalid_problem(tmp_path, panda):

@@ -96,6 +96,10 @@ def test_rl_view_plays_an_episode_of_the_environment(viewer):
     target = next(n for n in viewer.nodes if getattr(n, "name", "") == "/ee_target")
     goal = next(n for n in viewer.nodes if getattr(n, "name", "") == "/goal_pose")
     np.testing.assert_allclose(target.position, goal.position, atol=1e-5)  # switch on: the target is the goal
+    shown = [n.content for n in viewer.nodes if hasattr(n, "content") and "policy steps" in str(n.content)]
+    assert len(shown) == 1 and f"after {info['steps']} policy steps" in shown[0]  # the outcome is on the page
+    assert ("reached the goal" in shown[0]) == info["success"] and "switch" in shown[0]
+    assert tuple(viewer.server.initial_camera.position) != (1.6, -1.3, 1.1)  # framed on this episode's scene
 
 
 def test_results_browser_shows_every_method(viewer, tmp_path, shared_data):

@@ -63,15 +63,15 @@ def run(
     with tqdm(total=len(valid), initial=len(valid) - len(todo), desc=method.name, disable=not progress, unit="problem") as bar:
         for start in range(0, len(todo), chunk):
             part = todo[start : start + chunk]
-            if start == 0 and todo:  # the first call compiles: say so while the bar cannot move
+            if start == 0:  # the first call compiles: say so while the bar cannot move
                 bar.set_postfix_str(f"compiling and solving the first {len(part)}", refresh=True)
-            elif start == chunk:
-                bar.set_postfix_str("", refresh=False)
             for p, s in zip(part, _solve(method, robot, part), strict=True):
                 solutions[p.name] = s
             if checkpoint is not None and (start + chunk >= len(todo) or time.monotonic() - saved >= save_every_s):
                 _save(checkpoint, settings, solutions)
                 saved = time.monotonic()
+            if start == 0:
+                bar.set_postfix_str("", refresh=False)
             bar.update(len(part))
     rows = []
     for p in problems:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import zlib
+
 import jax.numpy as jnp
 import numpy as np
 
@@ -58,11 +60,22 @@ def ik_goal(robot, problem: Problem, frame: str, rng=None) -> np.ndarray | None:
     """A joint goal for a pose-goal problem: the collision-free IK solution of its goal pose nearest
     its start (128 seeds, 5 mm margin), or None when none is found. `rng` defaults to one seeded by
     the problem's name, so the answer does not depend on the order problems come in."""
-    import zlib
-
     rng = np.random.default_rng(zlib.crc32(problem.name.encode())) if rng is None else rng
     solutions = ik_configs(robot, problem.scene, frame, *problem.goal_pose, rng, seeds=128, margin=0.005, near=np.asarray(problem.start_q))
     return solutions[0] if len(solutions) else None
+
+
+def flag_unreachable(robot, problem: Problem, frame: str, seeds: int = 128) -> Problem:
+    """Mark a valid pose-goal problem invalid (`valid`, `reason`) when IK from `seeds` random
+    starts finds no configuration that reaches its goal pose inside the joint limits without
+    collision: a goal within `Robot.reach` can still be unreachable (inside the base, or an
+    orientation the wrist cannot take there), and would otherwise fail only after the full time."""
+    if not problem.valid or problem.goal_pose is None or problem.goal_q is not None:
+        return problem
+    rng = np.random.default_rng(zlib.crc32(problem.name.encode()))
+    if len(ik_configs(robot, problem.scene, frame, *problem.goal_pose, rng, seeds=seeds, margin=0.0, limit_margin=0.0)) == 0:
+        problem.valid, problem.reason = False, f"{problem.name}.goal_pose: no collision-free IK solution within the joint limits ({seeds} seeds)"
+    return problem
 
 
 def ik_configs(

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from fabrax.problems.generators import flag_unreachable
 from fabrax.problems.problem import Problem, flag
 from fabrax.robot.robot import Robot
 from fabrax.scene import empty, from_dict
@@ -180,7 +181,7 @@ def _read_files(root: Path) -> dict[str, str]:
 def load_mbm(robot: Robot, path=None, classes=None, split: str = "test", limit: int | None = None) -> list[Problem]:
     """MBM Panda problems as `Problem`s (joint goals, or pose goals of panda_hand where a request has
     them), flagged (`valid`, `reason`) when the start or goal is outside the limits, in collision for
-    this robot's collision model or out of its reach, or when its files are malformed (that problem
+    this robot's collision model, out of its reach or without a collision-free IK solution, or when its files are malformed (that problem
     alone; the others load).
 
     classes: subset of `CLASSES` (default all); split: train (1-50), test (51-100) or all;
@@ -208,7 +209,7 @@ def load_mbm(robot: Robot, path=None, classes=None, split: str = "test", limit: 
                 problems.append(Problem(np.zeros(robot.dof), empty(), name=name, kind=cls, valid=False, reason=str(e)))
                 continue
             p = Problem(start_q=start, scene=scene, goal_q=goal, goal_pose=pose, name=name, kind=cls)
-            problems.append(flag(robot, p))
+            problems.append(flag_unreachable(robot, flag(robot, p), "panda_hand"))
     return problems
 
 

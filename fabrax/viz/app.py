@@ -122,7 +122,12 @@ class Viewer:
         hand = lambda q: np.asarray(frame_pose(self.robot, jnp.asarray(q, jnp.float32), self.frame).translation())  # noqa: E731
         targets = [np.array([0.0, 0.0, 0.3]), hand(problem.start_q)]
         targets.append(hand(problem.goal_q) if problem.goal_q is not None else np.asarray(problem.goal_pose[0], float))
-        position, look_at = camera_view(problem.scene, np.stack(targets))
+        self.look(problem.scene, np.stack(targets))
+
+    def look(self, scene, targets: np.ndarray) -> None:
+        """Point the camera (new and connected clients) at `targets` (base, start hand, goal) from
+        the side where no obstacle of `scene` hides them (`camera_view`)."""
+        position, look_at = camera_view(scene, np.asarray(targets, float))
         self.server.initial_camera.position, self.server.initial_camera.look_at = position, look_at
         for client in self.server.get_clients().values():
             client.camera.position, client.camera.look_at = position, look_at

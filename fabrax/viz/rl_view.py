@@ -11,11 +11,13 @@ first step: the pure fabric aimed at the goal) or hold (`fabrax.rl.scripted`), o
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from fabrax.rl import make_env
 from fabrax.rl.observations import grid_points
 from fabrax.rl.scripted import POLICIES, episode
+from fabrax.robot.kinematics import frame_path
 from fabrax.scene import to_dict
 from fabrax.viz.app import GOAL, PATHS, Viewer
 from fabrax.viz.scene_view import draw_scene
@@ -39,13 +41,18 @@ def rl_view(viewer: Viewer, fabric_name: str = "panda", policy: str = "random", 
         env_cfg = eval_settings(guide.settings["env"], guide.settings["eval_scenes"])
     elif policy not in POLICIES:
         raise ValueError(f"policy must be one of {POLICIES}, got '{policy}'")
+    server = viewer.server
+    loading = server.gui.add_markdown(
+        "**Rolling out one episode** (the first call compiles the environment, about 20 s on a laptop CPU)..."
+    )
+    viewer.nodes.append(loading)
+    print("[view] rolling out one episode (the first call compiles the environment, about 20 s on a laptop CPU)...", flush=True)
     cfg = env_cfg or {"scenes": {"generated": {"cuboid_forest": 1, "shelves": 1, "flying_cuboids": 1}, "configs_per_scene": 4}}
     env = make_env(cfg, robot=viewer.robot_name, fabric=fabric)
     start, (qs, targets, counts, metrics, alive) = jax.jit(lambda k: episode(env, policy, k, act))(jax.random.PRNGKey(seed))
     ep = start.pipeline_state
     steps = int(np.asarray(alive).sum())
     q = np.concatenate([np.asarray(ep.q)[None], np.asarray(qs[:steps]).reshape(-1, env.robot.dof)])
-    server = viewer.server
 
     viewer.nodes += draw_scene(server, to_dict(ep.scene), "/scene")
     goal = dict(position=tuple(np.asarray(ep.goal_pos)), wxyz=tuple(np.asarray(ep.goal_quat)))
@@ -66,6 +73,8 @@ def rl_view(viewer: Viewer, fabric_name: str = "panda", policy: str = "random", 
     status = server.gui.add_markdown("")
     viewer.nodes += [target, cells, bps, show_bps, show_map, status]
     viewer.ee_line(q, "/path", PATHS[0])
+    hand = np.asarray(frame_path(viewer.robot, jnp.asarray(q[[0, -1]], jnp.float32), viewer.frame)[0])
+    viewer.look(ep.scene, np.stack([np.array([0.0, 0.0, 0.3]), hand[0], np.asarray(ep.goal_pos, float)]))
 
     targets, counts = np.asarray(targets), np.asarray(counts)
     dist = np.asarray(metrics["keypoint_distance"])
@@ -82,7 +91,7 @@ def rl_view(viewer: Viewer, fabric_name: str = "panda", policy: str = "random", 
 
     viewer.player([(viewer.arm, q)], env.cfg.fabric_dt, on_frame=at)
     last = max(steps - 1, 0)
-    return {
+    info = {
         "policy": policy,
         "scene": env.pool.names[int(ep.scene_index)],
         "steps": steps,
@@ -91,3 +100,19 @@ def rl_view(viewer: Viewer, fabric_name: str = "panda", policy: str = "random", 
         "keypoint_distance": float(dist[last]),
         "fabric_steps": len(q),
     }
+    loading.content = outcome(info, env.cfg.fabric_dt)
+    return info
+
+
+def outcome(info: dict, dt: float) -> str:
+    """The episode's result as the page shows it (markdown): reached, collided or ran out of time."""
+    if info["collision"]:
+        what = "**collided**"
+    elif info["success"]:
+        what = "**reached the goal**"
+    else:
+        what = "**did not reach the goal** (time ran out)"
+    return (
+        f"`{info['policy']}` on `{info['scene']}`: {what} after {info['steps']} policy steps "
+        f"({(info['fabric_steps'] - 1) * dt:.2f} s), final keypoint distance {info['keypoint_distance']:.3f} m"
+    )
