@@ -67,6 +67,5 @@ def load_fabric(robot, name: str | dict = "panda"):
     composed fabric config (a dict, e.g. the `fabric` group of a hydra config with overrides)."""
     from fabrax.fabrics import build_arm_fabric
 
-    posture = load("robot", robot.name).get("default_q") if (config_dir() / "robot" / f"{robot.name}.yaml").exists() else None
-    fabric = build_arm_fabric(robot, load("fabric", name) if isinstance(name, str) else name, posture=posture)
+    fabric = build_arm_fabric(robot, load("fabric", name) if isinstance(name, str) else name)
     return fabric, fabric.init()

@@ -51,6 +51,16 @@ def check(cfg: dict) -> None:
     budget = cfg.get("solvable_s")
     if budget is not None and (isinstance(budget, bool) or not isinstance(budget, (int, float)) or budget <= 0):
         raise SystemExit(f"fabrax bench: solvable_s must be a positive number of seconds or null, got {budget!r}")
+    if cfg["problems"] == "mbm":
+        from fabrax.problems.mbm import MBM_JOINTS
+
+        choice = config.robot_choice(cfg)
+        joints = (config.load("robot", choice) if isinstance(choice, str) else choice).get("active_joints")
+        if list(joints or []) != list(MBM_JOINTS):
+            name = choice if isinstance(choice, str) else choice.get("name")
+            raise SystemExit(
+                f"fabrax bench: problems=mbm are MotionBenchMaker's Panda problems; robot={name} cannot run them: use problems=mbm_like, mpinets_like or mpinets"
+            )
     if cfg["split"] not in ("train", "test", "all"):
         raise SystemExit(f"fabrax bench: split must be train, test or all, got {cfg['split']!r}")
     for key in ("dt", "t_max"):
@@ -288,6 +298,8 @@ def _run_bench(cfg: dict, out: Path) -> list[dict]:
     hint = "" if os.environ.get("FABRAX_DATA") else " (set FABRAX_DATA or data_dir= to the shared data folder, e.g. ../shared/data)"
     try:
         robot = config.load_robot(robot_name)
+        cfg = {**cfg, "frame": cfg.get("frame") or robot.ee_frame}
+        robot.frame_index(cfg["frame"])  # an unknown frame= fails here, in one line
         method = make_method(cfg, robot)
     except (ValueError, FileNotFoundError) as e:  # e.g. a robot's sphere file read from the data folder
         raise SystemExit(f"fabrax bench: {e}{hint}") from None

@@ -97,10 +97,12 @@ def evaluate(
     dt: float,
     *,
     goal: Goal = Goal(),
-    frame: str = "panda_hand",
+    frame: str | None = None,
     margin: float = 0.0,
 ) -> dict:
-    """All metrics of one trajectory q (T, n) sampled every dt."""
+    """All metrics of one trajectory q (T, n) sampled every dt; `frame` (default: the robot's
+    ee_frame) is the end effector that pose goals and EE lengths are measured on."""
+    frame = frame or robot.ee_frame
     q = np.asarray(q, np.float64)
     check = check_path(robot, problem.scene, q, margin=margin)
     joint_err, pos_err, rot_err, kp_err = goal_errors(robot, problem, q[-1], frame)

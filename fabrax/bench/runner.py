@@ -40,7 +40,7 @@ def run(
     *,
     goal: Goal = Goal(),
     margin: float = 0.0,
-    frame: str = "panda_hand",
+    frame: str | None = None,
     progress: bool = True,
     checkpoint: Path | None = None,
     settings: dict | None = None,

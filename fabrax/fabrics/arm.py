@@ -144,8 +144,13 @@ class ArmFabric(Fabric):
 
 
 def build_arm_fabric(robot: Robot, cfg: dict[str, Any], posture=None) -> ArmFabric:
-    """An `ArmFabric` from a config mapping: {terms: {name: {type: ..., params...}}, goal_tolerance: {...}, goal_frame}."""
+    """An `ArmFabric` from a config mapping: {terms: {name: {type: ..., params...}}, goal_tolerance: {...}, goal_frame}.
+    goal_frame null (or absent) is the robot's `ee_frame`; `posture` (the joint attractors' default
+    target) defaults to the robot's ready posture."""
     check_config(cfg)
+    goal_frame = cfg.get("goal_frame") or robot.ee_frame or robot.frame_names[-1]  # null: the robot's end effector
+    if posture is None:
+        posture = robot.ready_q if robot.ready_q is not None else np.zeros(robot.dof)
     terms = []
     for name, spec in (cfg.get("terms") or {}).items():
         spec = dict(spec)
@@ -153,11 +158,11 @@ def build_arm_fabric(robot: Robot, cfg: dict[str, Any], posture=None) -> ArmFabr
         if kind not in TERMS:
             raise ValueError(f"fabric term '{name}': unknown type '{kind}' (types: {', '.join(TERMS)})")
         if kind == "ee_attractor":
-            spec.setdefault("frame", cfg.get("goal_frame", "panda_hand"))
+            spec.setdefault("frame", goal_frame)
         if kind == "joint_attractor":
             spec.setdefault("n", robot.dof)
             if "target" not in spec:
-                spec["target"] = np.asarray(posture if posture is not None else np.zeros(robot.dof), np.float32)
+                spec["target"] = np.asarray(posture, np.float32)
         terms.append(TERMS[kind](name=name, **spec))
     tol = dict(cfg.get("goal_tolerance") or {})
     unknown = set(tol) - {"joint", "position", "orientation_deg"}
@@ -166,11 +171,11 @@ def build_arm_fabric(robot: Robot, cfg: dict[str, Any], posture=None) -> ArmFabr
     fabric = ArmFabric(
         robot=robot,
         terms=tuple(terms),
-        goal_frame=cfg.get("goal_frame", "panda_hand"),
+        goal_frame=goal_frame,
         joint_tolerance=float(tol.get("joint", 0.05)),
         position_tolerance=float(tol.get("position", 0.01)),
         orientation_tolerance=float(np.deg2rad(tol.get("orientation_deg", 15.0))),
-        posture=tuple(float(v) for v in posture) if posture is not None else (),
+        posture=tuple(float(v) for v in np.asarray(posture)),
         energization=cfg.get("energization", "dissipative"),
         default_posture_weight=float(cfg.get("default_posture_weight", 1.0)),
     )

@@ -92,18 +92,42 @@ def ik_configs(
     return qs[good][np.argsort(key)]
 
 
-def demo_problem(robot: Robot) -> Problem:
-    """The built-in demo: from the ready posture into the middle cell of a shelf (Panda joint goal).
+DEMO_SHELF = {"center": (0.8, 0.0, 0.0), "depth": 0.4, "heights": (0.25, 0.7, 1.1)}
+DEMO_HAND = ((0.7346, 0.0, 0.4644), (0.0001, 0.8776, 0.0002, 0.4794))  # the Panda's goal: panda_hand (position, wxyz)
 
-    The goal posture has the hand 15 cm inside a 45 cm cell, pitched 33 degrees
-    down; straight joint interpolation passes within about a millimetre of the middle board.
-    """
-    if robot.dof != 7:
-        raise ValueError("the built-in demo problem is posed for a 7-joint arm such as the Panda")
-    scene = from_dict(shelf(center=(0.8, 0.0, 0.0), depth=0.4, heights=(0.25, 0.7, 1.1)))
-    ready = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
-    goal = np.array([0.0, 0.5, 0.0, -1.6, 0.0, 3.1, 0.785])
-    return make_problem(robot, ready, scene, goal_q=goal, name="demo_shelf", kind="shelf")
+
+def demo_problem(robot: Robot) -> Problem:
+    """The built-in demo: from the ready posture into the middle cell of a shelf (joint goal).
+
+    For the Panda the goal posture has the hand 15 cm inside a 45 cm cell, pitched 33 degrees
+    down; straight joint interpolation passes within about a millimetre of the middle board. For
+    another arm the shelf and that hand pose are carried into its workspace
+    (`workspace.panda_workspace`) and the goal is the collision-free IK solution nearest its ready
+    posture."""
+    from fabrax.problems.workspace import carry, panda_workspace
+
+    scene_dict = shelf(**DEMO_SHELF)
+    if tuple(robot.joint_names) == tuple(f"panda_joint{i}" for i in range(1, 8)):
+        ready = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
+        goal = np.array([0.0, 0.5, 0.0, -1.6, 0.0, 3.1, 0.785])
+        return make_problem(robot, ready, from_dict(scene_dict), goal_q=goal, name="demo_shelf", kind="shelf")
+    frame = robot.ee_frame
+    goals = [tuple(np.asarray(v, np.float64) for v in DEMO_HAND)]
+    workspace = panda_workspace(robot, frame)
+    if workspace is not None:
+        scene_dict, goals = carry(scene_dict, goals, *workspace)
+    scene = from_dict(scene_dict)
+    ready = np.asarray(robot.ready_q, np.float64)
+    rng = np.random.default_rng(0)
+    near = np.clip(ready + rng.normal(scale=0.5, size=(256, robot.dof)), robot.lower, robot.upper)  # IK seeds around the ready posture
+    qs, err = solve_ik(robot, frame, jnp.asarray(goals[0][0], jnp.float32), jnp.asarray(goals[0][1], jnp.float32), jnp.asarray(near, jnp.float32))
+    qs, err = np.asarray(qs, np.float64), np.asarray(err)
+    qs = qs[(err < 1e-3) & np.asarray(robot.within_limits(jnp.asarray(qs)))]
+    solutions = qs[valid_configs(robot, scene, qs, 0.01)] if len(qs) else qs
+    solutions = solutions[np.argsort(np.linalg.norm(solutions - ready, axis=1))]
+    if len(solutions) == 0:
+        raise ValueError(f"the demo's shelf goal has no collision-free IK solution for robot '{robot.name}' (frame {frame})")
+    return make_problem(robot, ready, scene, goal_q=solutions[0], name="demo_shelf", kind="shelf")
 
 
 def random_problems(

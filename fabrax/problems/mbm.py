@@ -26,6 +26,7 @@ from fabrax.scene import empty, from_dict
 
 CLASSES = ("bookshelf_small", "bookshelf_tall", "bookshelf_thin", "box", "cage", "table_pick", "table_under_pick")
 ARCHIVE = "mbm_panda_problems.tar.bz2"
+MBM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))  # the arm every MotionBenchMaker request is posed for
 SPLITS = {"train": range(1, 51), "test": range(51, 101), "all": range(1, 101)}
 
 
@@ -187,6 +188,8 @@ def load_mbm(robot: Robot, path=None, classes=None, split: str = "test", limit: 
     classes: subset of `CLASSES` (default all); split: train (1-50), test (51-100) or all;
     limit: at most this many problems per class.
     """
+    if tuple(robot.joint_names) != MBM_JOINTS:
+        raise ValueError(f"MotionBenchMaker's problems are posed for the Panda; robot '{robot.name}' cannot run them (use generated problems)")
     if split not in SPLITS:
         raise ValueError(f"split must be one of {sorted(SPLITS)}, got '{split}'")
     classes = list(classes or CLASSES)

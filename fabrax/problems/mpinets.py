@@ -22,6 +22,9 @@ random one among the valid solutions), checked by the project's exact checker. M
 problem only when a global planner solves it; `generate` takes that check as a callable
 (`solvable`) from the harness, and counts the problems it drops. Each problem is drawn from its
 own generator seeded by (seed, index), so a problem is the same whichever filter selects it.
+For another arm (`Fit`) the scenes and TCP poses are scaled about the base by the ratio of its
+reach to the Panda's, the hand sits its own `tool_length` behind the TCP, and neutral postures are
+drawn around its ready posture.
 
 Deviations, each a limit of the scene representation: closed drawers are their front boards (the
 rest of a closed drawer lies inside the body, unreachable); the tabletop's mount plate under the
@@ -57,8 +60,10 @@ TYPES = ("task_oriented", "neutral_start", "neutral_goal")
 TYPE_WEIGHTS = (0.5, 0.25, 0.25)
 NEUTRAL = np.array([-0.017792, -0.760124, 0.019783, -2.342050, 0.029841, 1.541194, 0.753449])  # robofin's Franka neutral
 TCP_OFFSET = 0.10  # m from panda_hand to right_gripper along the hand's z
+PANDA_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
 VERSION = 1  # bump when a distribution changes: cached sets are keyed by it
 MOUNT_TOP = -0.04  # m: the plate under the robot (MπNets: top at 0) sits below the Panda base's collision spheres
+MOUNT_CLEARANCE = 0.015  # m between another arm's lowest base sphere and the mount plate's top
 IK_MARGIN = 0.005  # m of clearance a start or goal configuration keeps (exact checker)
 
 
@@ -112,18 +117,43 @@ def _matrix(quat_wxyz) -> np.ndarray:
     )
 
 
-def tcp_to_hand(position, quat_wxyz) -> tuple[np.ndarray, np.ndarray]:
+def tcp_to_hand(position, quat_wxyz, offset: float = TCP_OFFSET) -> tuple[np.ndarray, np.ndarray]:
     """The ``panda_hand`` pose whose tool centre point (MπNets' ``right_gripper``) is at the given pose:
-    T_hand = T_tcp · T_off⁻¹ with T_off = (Rz(π), (0, 0, TCP_OFFSET))."""
+    T_hand = T_tcp · T_off⁻¹ with T_off = (Rz(π), (0, 0, offset)); another arm's `ee_frame` with its
+    `tool_length` as `offset`."""
     r = _matrix(quat_wxyz)
-    p = np.asarray(position, np.float64) - TCP_OFFSET * r[:, 2]
+    p = np.asarray(position, np.float64) - offset * r[:, 2]
     return p, _quat(r @ _rz(np.pi))
 
 
-def hand_to_tcp(position, quat_wxyz) -> tuple[np.ndarray, np.ndarray]:
+def hand_to_tcp(position, quat_wxyz, offset: float = TCP_OFFSET) -> tuple[np.ndarray, np.ndarray]:
     """The tool centre point's pose from the ``panda_hand`` pose (inverse of `tcp_to_hand`)."""
     r = _matrix(quat_wxyz)
-    return np.asarray(position, np.float64) + TCP_OFFSET * r[:, 2], _quat(r @ _rz(np.pi))
+    return np.asarray(position, np.float64) + offset * r[:, 2], _quat(r @ _rz(np.pi))
+
+
+@dataclasses.dataclass(frozen=True)
+class Fit:
+    """How the Panda's set is carried to an arm: scenes and TCP poses scaled about the base by
+    `scale` (`workspace.workspace_reach` ratio), the hand `offset` behind the TCP (the arm's
+    `tool_length`), neutral postures around `neutral` (its ready posture). The Panda's: MπNets' own."""
+
+    scale: float = 1.0
+    offset: float = TCP_OFFSET
+    neutral: tuple = tuple(NEUTRAL.tolist())
+    mount_top: float = MOUNT_TOP  # m: the tabletop's mount plate stays this far down, below the arm's base spheres
+
+    @classmethod
+    def of(cls, robot: Robot, frame: str) -> "Fit":
+        if tuple(robot.joint_names) == PANDA_JOINTS:
+            return cls()
+        from fabrax.problems.workspace import PANDA_REACH, workspace_reach
+
+        scale = workspace_reach(robot, frame) / PANDA_REACH
+        base = np.asarray(robot.sphere_frame) == 0  # spheres fixed to the base
+        lowest = float(np.min(np.asarray(robot.sphere_local)[base, 2] - np.asarray(robot.sphere_radius)[base])) if base.any() else 0.0
+        neutral = tuple(np.asarray(robot.ready_q, np.float64).tolist())
+        return cls(scale, float(robot.tool_length), neutral, min(MOUNT_TOP, round(lowest - MOUNT_CLEARANCE, 4)))
 
 
 # ------------------------------------------------------------------------------------------ volumes
@@ -441,9 +471,9 @@ def _ik_many(robot: Robot, frame: str, positions, quats, seeds):
     return jax.vmap(lambda p, q, s: solve_ik(robot, frame, p, q, s))(positions, quats, seeds)
 
 
-def _ik_in(robot, scene, frame, poses, rng, seeds: int = 16) -> tuple[np.ndarray, int] | None:
+def _ik_in(robot, scene, frame, poses, rng, seeds: int = 16, offset: float = TCP_OFFSET) -> tuple[np.ndarray, int] | None:
     """A collision-free IK solution (random branch) of the first of `poses` (TCP poses) that has one."""
-    hand = [tcp_to_hand(p, _quat(m)) for p, m in poses]
+    hand = [tcp_to_hand(p, _quat(m), offset) for p, m in poses]
     pos = jnp.asarray(np.stack([h[0] for h in hand]), jnp.float32)
     quat = jnp.asarray(np.stack([h[1] for h in hand]), jnp.float32)
     lo, hi = np.asarray(robot.lower), np.asarray(robot.upper)
@@ -461,11 +491,11 @@ def _ik_in(robot, scene, frame, poses, rng, seeds: int = 16) -> tuple[np.ndarray
     return None
 
 
-def _neutral(robot, scene, rng, tries: int = 8) -> np.ndarray | None:
+def _neutral(robot, scene, rng, tries: int = 8, neutral=NEUTRAL) -> np.ndarray | None:
     """A collision-free neutral posture: NEUTRAL + U(0, 0.25) rad per joint (robofin's 'uniform')."""
     lo, hi = np.asarray(robot.lower), np.asarray(robot.upper)
     for _ in range(tries):
-        qs = np.clip(NEUTRAL + rng.uniform(0, 0.25, (32, robot.dof)), lo, hi)
+        qs = np.clip(np.asarray(neutral) + rng.uniform(0, 0.25, (32, robot.dof)), lo, hi)
         env, slf, ok = (np.asarray(a) for a in state_clearances(robot, scene, jnp.asarray(qs, jnp.float32)))
         good = np.flatnonzero(ok & (env > IK_MARGIN) & (slf > 0.0))
         if len(good):
@@ -473,11 +503,13 @@ def _neutral(robot, scene, rng, tries: int = 8) -> np.ndarray | None:
     return None
 
 
-def _container_config(robot, scene, frame, lay: Layout, which: int, rng, rounds: int = 6):
+def _container_config(robot, scene, frame, lay: Layout, which: int, rng, rounds: int = 6, fit: Fit = Fit()):
     """A TCP pose of container `which` and its IK configuration (up to 6 x 16 poses, as MπNets' 100)."""
     for _ in range(rounds):
         poses = lay.goal_poses(rng, which, 16)
-        found = _ik_in(robot, scene, frame, poses, rng)
+        if fit.scale != 1.0:
+            poses = [(fit.scale * np.asarray(p), m) for p, m in poses]
+        found = _ik_in(robot, scene, frame, poses, rng, offset=fit.offset)
         if found is not None:
             q, k = found
             return poses[k], q
@@ -493,9 +525,10 @@ def draw(seed: int, index: int) -> tuple[str, str]:
     return str(rng.choice(FAMILIES, p=FAMILY_WEIGHTS)), str(rng.choice(TYPES, p=TYPE_WEIGHTS))
 
 
-def one(robot: Robot, seed: int, index: int, frame: str = "panda_hand", tries: int = 30) -> Problem | None:
+def one(robot: Robot, seed: int, index: int, frame: str = "panda_hand", tries: int = 30, fit: Fit = Fit()) -> Problem | None:
     """Problem `index` of the set drawn with `seed`, or None when `tries` scenes gave no valid problem.
-    Its `meta` carries family, problem type, the TCP goal pose and the generator's goal configuration."""
+    Its `meta` carries family, problem type, the TCP goal pose and the generator's goal configuration.
+    `fit` carries the Panda's scene and poses to another arm (`Fit.of`)."""
     family, kind = draw(seed, index)
     rng = np.random.default_rng([seed, index, 1])
     for _ in range(tries):
@@ -503,31 +536,39 @@ def one(robot: Robot, seed: int, index: int, frame: str = "panda_hand", tries: i
         if lay is None:
             continue
         try:
-            scene = from_dict({"obstacles": lay.obstacles}).pad(**COMMON_CAPACITY)
+            obstacles = lay.obstacles
+            if fit.scale != 1.0:
+                from fabrax.problems.workspace import carry
+
+                obstacles = carry({"obstacles": obstacles}, [], fit.scale, 0.0)[0]["obstacles"]
+                for o in obstacles:
+                    if o.get("name") == "mount":  # under the arm's own base, not scaled with the scene
+                        o["center"][2], o["size"][2] = fit.mount_top - 0.01, 0.02
+            scene = from_dict({"obstacles": obstacles}).pad(**COMMON_CAPACITY)
         except ValueError:
             continue  # over the common capacity: draw again
         start = goal_q = tcp = None
         if kind in ("task_oriented", "neutral_goal"):
-            found = _container_config(robot, scene, frame, lay, 0, rng)
+            found = _container_config(robot, scene, frame, lay, 0, rng, fit=fit)
             if found is None:
                 continue
             start = found[1]
         if kind in ("task_oriented", "neutral_start"):
-            found = _container_config(robot, scene, frame, lay, 1, rng)
+            found = _container_config(robot, scene, frame, lay, 1, rng, fit=fit)
             if found is None:
                 continue
             (p, m), goal_q = found
             tcp = (p, _quat(m))
         if kind == "neutral_start":
-            start = _neutral(robot, scene, rng)
+            start = _neutral(robot, scene, rng, neutral=fit.neutral)
         if kind == "neutral_goal":
-            goal_q = _neutral(robot, scene, rng)
+            goal_q = _neutral(robot, scene, rng, neutral=fit.neutral)
             if goal_q is not None:
                 pose = frame_pose(robot, jnp.asarray(goal_q, jnp.float32), frame)
-                tcp = hand_to_tcp(np.asarray(pose.translation(), np.float64), np.asarray(pose.rotation().wxyz, np.float64))
+                tcp = hand_to_tcp(np.asarray(pose.translation(), np.float64), np.asarray(pose.rotation().wxyz, np.float64), fit.offset)
         if start is None or goal_q is None:
             continue
-        goal = tcp_to_hand(*tcp)
+        goal = tcp_to_hand(*tcp, fit.offset)
         meta = {"family": family, "problem_type": kind, "tcp_goal": [np.asarray(tcp[0]).tolist(), np.asarray(tcp[1]).tolist()]}
         meta |= {"goal_q": np.asarray(goal_q).tolist(), "params": _plain(lay.params)}
         p = Problem(start_q=start, scene=scene, goal_pose=goal, name=f"{family}/{kind}/{index:05d}", kind=family, meta=meta)
@@ -564,7 +605,7 @@ def generate(
     seed: int = 0,
     classes=None,
     types=None,
-    frame: str = "panda_hand",
+    frame: str | None = None,
     solvable: Callable[[Robot, Problem], bool] | None = None,
     solvable_key: str | None = None,
     cache_dir: str | Path | None = None,
@@ -573,7 +614,11 @@ def generate(
     """The first n problems of the set drawn with `seed` whose family is in `classes` and type in
     `types` (all when None), each kept only if `solvable(robot, problem)` (problems carry the
     generator's goal configuration in meta["goal_q"]). With `cache_dir`, the set is stored there
-    under a key of every setting (`solvable_key` names the check) and read back next time."""
+    under a key of every setting (`solvable_key` names the check) and read back next time. For an
+    arm other than the Panda the scenes and poses are carried into its workspace (`Fit.of`), for
+    its `ee_frame` (the default `frame`)."""
+    frame = frame or robot.ee_frame
+    fit = Fit.of(robot, frame)
     classes = list(classes or FAMILIES)
     types = list(types or TYPES)
     for name, given, known in (("classes", classes, FAMILIES), ("types", types, TYPES)):
@@ -582,6 +627,8 @@ def generate(
             raise ValueError(f"unknown MπNets {name} {bad} ({name}: {', '.join(known)})")
     key = {"version": VERSION, "robot": robot.name, "spheres": int(robot.n_spheres), "n": n, "seed": seed, "classes": classes, "types": types}
     key |= {"frame": frame, "solvable": solvable_key if solvable is not None else None}
+    if fit != Fit():
+        key["fit"] = dataclasses.asdict(fit)
     path = None
     if cache_dir is not None:
         digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
@@ -593,7 +640,7 @@ def generate(
     while len(kept) < n:
         family, kind = draw(seed, index)
         if family in classes and kind in types:
-            p = one(robot, seed, index, frame)
+            p = one(robot, seed, index, frame, fit=fit)
             if p is None:
                 failed.append(f"{family}/{kind}/{index:05d}")
             elif solvable is not None and not solvable(robot, p):

@@ -26,16 +26,15 @@ import numpy as np
 
 from fabrax.problems.generators import ik_configs, sample_configs
 from fabrax.problems.problem import Problem, make_problem
+from fabrax.problems.workspace import carry, panda_workspace
 from fabrax.robot.kinematics import frame_path
 from fabrax.robot.robot import Robot
 from fabrax.scene import COMMON_CAPACITY, from_dict
 
 MBM_LIKE = ("table_pick", "table_under_pick", "box", "bookshelf", "cage")
 MPINETS_LIKE = ("cubby", "merged_cubby", "dresser", "tabletop")
-READY = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
+READY = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])  # the Panda's ready posture
 HOVER = 0.16  # m between a surface and the hand frame of a downward grasp (fingertips ~3 cm above)
-
-
 def _box(center, size, yaw=0.0, name="box"):
     return {"type": "cuboid", "name": name, "center": [float(v) for v in center], "quat_wxyz": _yaw(yaw), "size": [float(v) for v in size]}
 
@@ -224,21 +223,26 @@ SCENES = {
 }
 
 
-def _one(robot: Robot, cls: str, rng: np.random.Generator, name: str, frame: str, tries: int = 40) -> Problem:
+def _one(robot: Robot, cls: str, rng: np.random.Generator, name: str, frame: str, workspace=None, tries: int = 40) -> Problem:
     pose_goal = cls in MPINETS_LIKE
+    ready = READY if robot.ready_q is None else np.asarray(robot.ready_q, np.float64)
+    if ready.shape == READY.shape and np.allclose(ready, READY, atol=1e-6):
+        ready = READY  # the Panda's, exactly (its config holds it in float32)
     for _ in range(tries):
         scene_dict, goals = SCENES[cls](rng)
         if not goals:
             continue
+        if workspace is not None:
+            scene_dict, goals = carry(scene_dict, goals, *workspace)
         scene = from_dict(scene_dict).pad(**COMMON_CAPACITY)  # one shape: one compiled IK/checker for every scene
         position, quat = goals[int(rng.integers(len(goals)))]
-        solutions = ik_configs(robot, scene, frame, position, quat, rng, seeds=128, margin=0.005, near=READY)
+        solutions = ik_configs(robot, scene, frame, position, quat, rng, seeds=128, margin=0.005, near=ready)
         if len(solutions) == 0:
             continue
         if cls == "table_under_pick":  # start below the table
             table_top = scene_dict["obstacles"][0]["center"][2]
             try:
-                starts = sample_configs(robot, scene, 64, rng, margin=0.02, around=READY, spread=0.8)
+                starts = sample_configs(robot, scene, 64, rng, margin=0.02, around=ready, spread=0.8)
             except ValueError:
                 continue
             z = np.asarray(frame_path(robot, jnp.asarray(starts, jnp.float32), frame)[0])[:, 2]
@@ -248,11 +252,11 @@ def _one(robot: Robot, cls: str, rng: np.random.Generator, name: str, frame: str
             start = below[0]
         elif pose_goal:
             try:
-                start = sample_configs(robot, scene, 1, rng, margin=0.03, around=READY, spread=0.5)[0]
+                start = sample_configs(robot, scene, 1, rng, margin=0.03, around=ready, spread=0.5)[0]
             except ValueError:
                 continue  # this scene leaves no room near the ready posture: draw another
         else:
-            start = READY
+            start = ready
         try:
             if pose_goal:
                 return make_problem(robot, start, scene, goal_pose=(position, quat), name=name, kind=cls)
@@ -262,8 +266,11 @@ def _one(robot: Robot, cls: str, rng: np.random.Generator, name: str, frame: str
     raise ValueError(f"could not generate a valid '{cls}' problem in {tries} tries")
 
 
-def generate(robot: Robot, family: str, classes=None, n: int = 100, seed: int = 0, frame: str = "panda_hand") -> list[Problem]:
-    """n problems per class of a family ('mbm_like' or 'mpinets_like'), deterministic per seed."""
+def generate(robot: Robot, family: str, classes=None, n: int = 100, seed: int = 0, frame: str | None = None) -> list[Problem]:
+    """n problems per class of a family ('mbm_like' or 'mpinets_like'), deterministic per seed, for
+    the end effector `frame` (default: the robot's ee_frame). Starts are the robot's ready posture
+    (or valid configurations near it); for an arm other than the Panda the scenes are carried into
+    its workspace (`workspace.panda_workspace`: scaled by its reach, goals placed for its tool)."""
     names = {"mbm_like": MBM_LIKE, "mpinets_like": MPINETS_LIKE}
     if family not in names:
         raise ValueError(f"family must be mbm_like or mpinets_like, got '{family}'")
@@ -271,8 +278,10 @@ def generate(robot: Robot, family: str, classes=None, n: int = 100, seed: int = 
     unknown = [c for c in classes if c not in names[family]]
     if unknown:
         raise ValueError(f"unknown {family} classes {unknown} (classes: {', '.join(names[family])})")
+    frame = frame or robot.ee_frame
+    workspace = panda_workspace(robot, frame)
     out = []
     for cls in classes:
         rng = np.random.default_rng([seed, zlib.crc32(cls.encode())])
-        out.extend(_one(robot, cls, rng, f"{cls}/{k:04d}", frame) for k in range(n))
+        out.extend(_one(robot, cls, rng, f"{cls}/{k:04d}", frame, workspace) for k in range(n))
     return out

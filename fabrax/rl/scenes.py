@@ -82,11 +82,12 @@ def _configs(robot: Robot, scene: Scene, sc, rng, name: str, start, goal) -> np.
     return np.concatenate(near)
 
 
-def build_pool(robot: Robot, cfg: EnvConfig, problems: list[Problem] = (), frame: str = "panda_hand") -> ScenePool:
+def build_pool(robot: Robot, cfg: EnvConfig, problems: list[Problem] = (), frame: str | None = None) -> ScenePool:
     """A `ScenePool` of the dataset `problems` (e.g. `load_mbm(split='train')`; invalid ones are
     skipped; a pose goal becomes the generator's goal configuration where the problem carries one
     (`meta["goal_q"]`, MπNets-faithful problems), else the collision-free IK solution of `frame`
     nearest the start, and a problem without one is skipped) and the generated scenes of `cfg.scenes`."""
+    frame = frame or robot.ee_frame
     sc = cfg.scenes
     capacity = dict(sc.capacity)
     rng = np.random.default_rng(sc.seed)

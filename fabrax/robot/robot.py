@@ -53,12 +53,15 @@ class Robot:
     pair_groups_mask: jax.Array  # (G, Q)
     link_pair_groups: jax.Array  # (LP, C) rows of pair_groups that belong to one pair of links, padded
     link_pair_groups_mask: jax.Array  # (LP, C)
+    ee_frame: str = struct.field(pytree_node=False, default="")  # the end effector's frame (z along the tool's approach)
+    tool_length: float = struct.field(pytree_node=False, default=0.0)  # m from ee_frame along its z to the tool centre point
     keypoint_frame: int = struct.field(pytree_node=False, default=0)  # joint frame that carries the keypoints
     keypoint_local: jax.Array | None = None  # (8, 3) corners of the end effector's bounding box in that frame
     effort: jax.Array | None = None  # (n,) joint torque limits from the URDF (inf where none)
     frame_mass: jax.Array | None = None  # (n+1,) mass rigidly carried by each joint frame (0 = base), from the URDF's <inertial>
     frame_com: jax.Array | None = None  # (n+1, 3) its centre of mass in the frame
     frame_inertia: jax.Array | None = None  # (n+1, 3, 3) its inertia about that centre, frame axes
+    ready_q: jax.Array | None = None  # (n,) the ready posture (config default_q; else the middle of the limits)
 
     @property
     def dof(self) -> int:
@@ -97,10 +100,31 @@ class Robot:
 
 def panda_urdf() -> Path:
     """The Franka Panda URDF shipped by the `example-robot-data` package."""
-    for f in importlib.metadata.files("example-robot-data") or []:
-        if str(f).endswith("panda_description/urdf/panda.urdf"):
-            return Path(f.locate())
-    raise ValueError("example-robot-data is installed without the Panda URDF")
+    return resolve_urdf("panda_description/urdf/panda.urdf")
+
+
+def resolve_urdf(spec: str | Path | None) -> Path:
+    """The URDF file a robot config names: None is the Panda of `example-robot-data`; an existing
+    path (absolute, or relative to the current folder) is used as it is; anything else is a path
+    inside `example-robot-data`'s robots folder (e.g. `ur_description/urdf/ur5_robot.urdf`), so a
+    config works from any folder and on any machine that installed the package."""
+    if spec is None:
+        spec = "panda_description/urdf/panda.urdf"
+    path = Path(str(spec)).expanduser()
+    if path.is_file():
+        return path
+    if not path.is_absolute():
+        try:
+            files = importlib.metadata.files("example-robot-data") or []
+        except importlib.metadata.PackageNotFoundError:
+            files = []
+        tail = "/" + path.as_posix().lstrip("/")
+        for f in files:
+            if ("/" + str(f)).endswith(tail):
+                return Path(f.locate())
+    if path.is_absolute():
+        raise ValueError(f"robot.urdf: {path} not found")
+    raise ValueError(f"robot.urdf: '{spec}' not found: neither a file nor a path inside example-robot-data's robots folder")
 
 
 def _ancestors(parent: np.ndarray) -> np.ndarray:
@@ -196,17 +220,34 @@ def self_collision_pairs(
 def build_robot(cfg: dict[str, Any]) -> Robot:
     """Build a `Robot` from a config mapping (see configs/robot/panda.yaml).
 
-    Keys: urdf (path, or null for the example-robot-data Panda), active_joints,
+    Keys: urdf (path, a path inside example-robot-data, or null for its Panda), active_joints,
+    ee_frame (default: keypoints.frame, else the last link), tool_length, default_q (the ready
+    posture), limits (for joints the URDF leaves unbounded),
     held, acceleration, jerk, frames, spheres {source: fit|file, budget,
     tolerance, file, set}, self_collision {samples, max_fraction, reference_q}.
     """
-    known = {"name", "urdf", "active_joints", "held", "acceleration", "jerk", "frames", "spheres", "self_collision", "default_q", "keypoints"}
+    known = {
+        "name", "urdf", "active_joints", "held", "acceleration", "jerk", "frames", "spheres", "self_collision", "default_q",
+        "keypoints", "ee_frame", "tool_length", "limits",
+    }  # fmt: skip
     unknown = set(cfg) - known
     if unknown:
         raise ValueError(f"unknown robot config keys {sorted(unknown)} (known: {sorted(known)})")
-    urdf = cfg.get("urdf") or panda_urdf()
+    urdf = resolve_urdf(cfg.get("urdf"))
     tree = parse_urdf(urdf, cfg.get("active_joints"), cfg.get("held"))
     n = tree.dof
+    _set_limits(tree, cfg.get("limits") or {})
+    ready = cfg.get("default_q")
+    if ready is not None:
+        ready = np.asarray(ready, np.float64)
+        if ready.shape != (n,) or not np.all(np.isfinite(ready)):
+            raise ValueError(f"robot.default_q must be {n} finite numbers (one per active joint), got {cfg.get('default_q')}")
+        outside = np.nonzero((ready < tree.lower - 1e-6) | (ready > tree.upper + 1e-6))[0]
+        if len(outside):
+            j = int(outside[0])
+            raise ValueError(f"robot.default_q[{j}] = {ready[j]} is outside the limits of {tree.joint_names[j]} [{tree.lower[j]}, {tree.upper[j]}]")
+    else:
+        ready = 0.5 * (tree.lower + tree.upper)
 
     def per_joint(key, default):
         v = np.asarray(cfg.get(key) if cfg.get(key) is not None else default, dtype=np.float64)
@@ -317,13 +358,22 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
     groups, group_mask = _groups(chunks)
     owner = np.asarray(owner)
     link_groups, link_group_mask = _groups([np.nonzero(owner == k)[0] for k in np.unique(owner)])
-    kp_frame, kp_local = _keypoint_box(cfg.get("keypoints"), frame_names, frame_parent, frame_offset, link_names, s_link, s_frame, s_local, s_radius)
+    ee_frame = cfg.get("ee_frame") or (cfg.get("keypoints") or {}).get("frame") or tree.link_names[-1]
+    if ee_frame not in frame_names:
+        raise ValueError(f"robot.ee_frame '{ee_frame}' is not a link or frame of {urdf.name} (frames: {', '.join(frame_names)})")
+    tool_length = cfg.get("tool_length", 0.0)
+    if not isinstance(tool_length, (int, float)) or isinstance(tool_length, bool) or not np.isfinite(tool_length) or tool_length < 0:
+        raise ValueError(f"robot.tool_length must be a finite number >= 0 (m), got {tool_length!r}")
+    kp_frame, kp_local = _keypoint_box(cfg.get("keypoints"), ee_frame, frame_names, frame_parent, frame_offset, link_names, s_link, s_frame, s_local, s_radius)
     mass, com, inertia = frame_inertials(tree)
     return robot.replace(
         effort=f32(tree.effort),
         frame_mass=f32(mass),
         frame_com=f32(com),
         frame_inertia=f32(inertia),
+        ee_frame=ee_frame,
+        tool_length=float(tool_length),
+        ready_q=f32(ready),
         keypoint_frame=kp_frame,
         keypoint_local=f32(kp_local),
         pair_i=jnp.asarray(pi),
@@ -335,15 +385,31 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
     )
 
 
-def _keypoint_box(spec, frame_names, frame_parent, frame_offset, link_names, s_link, s_frame, s_local, s_radius):
+def _set_limits(tree: KinematicTree, limits: dict) -> None:
+    """Joint limits the URDF lacks (continuous joints) or that the config narrows:
+    {joint name: [lower, upper]}; every active joint must end up with finite limits."""
+    for name, bounds in limits.items():
+        if name not in tree.joint_names:
+            raise ValueError(f"robot.limits.{name}: not an active joint (active: {', '.join(tree.joint_names)})")
+        lo_hi = np.asarray(bounds, np.float64)
+        if lo_hi.shape != (2,) or not np.all(np.isfinite(lo_hi)) or lo_hi[0] >= lo_hi[1]:
+            raise ValueError(f"robot.limits.{name} must be [lower, upper] with lower < upper, got {bounds}")
+        j = tree.joint_names.index(name)
+        tree.lower[j], tree.upper[j] = lo_hi
+    for j, name in enumerate(tree.joint_names):
+        if not (np.isfinite(tree.lower[j]) and np.isfinite(tree.upper[j])):
+            raise ValueError(f"robot.limits.{name}: the URDF gives this joint no limits (continuous); set robot.limits.{name}: [lower, upper]")
+
+
+def _keypoint_box(spec, ee_frame, frame_names, frame_parent, frame_offset, link_names, s_link, s_frame, s_local, s_radius):
     """The 8 corners of the box, axis-aligned in frame `spec.frame`, around the collision spheres of
     `spec.links` (the end effector's bounding box of thesis §3.4.2), in the joint frame that carries
-    them. Without a spec: a 0.1 m cube on the last link."""
+    them. Without a spec: a 0.1 m cube on the end-effector frame."""
     spec = dict(spec or {})
     unknown = set(spec) - {"frame", "links"}
     if unknown:
         raise ValueError(f"unknown robot.keypoints keys {sorted(unknown)} (known: frame, links)")
-    name = spec.get("frame", frame_names[-1])
+    name = spec.get("frame") or ee_frame
     if name not in frame_names:
         raise ValueError(f"robot.keypoints.frame '{name}' is not a frame of the robot")
     f = frame_names.index(name)

@@ -66,7 +66,7 @@ class Viewer:
         self.robot_cfg = config.load("robot", robot_name) if isinstance(robot_name, str) else robot_name
         self.robot_name = robot_name  # a configs/robot name or a composed robot config
         self.robot = config.load_robot(robot_name)
-        self.frame = frame or ("panda_hand" if "panda_hand" in self.robot.frame_names else self.robot.frame_names[-1])
+        self.frame = frame or self.robot.ee_frame
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.server.scene.set_up_direction("+z")
         self.server.initial_camera.position = (1.6, -1.3, 1.1)

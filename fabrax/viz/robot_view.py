@@ -11,7 +11,7 @@ import trimesh
 import yourdfpy
 
 from fabrax.robot.kinematics import sphere_centers
-from fabrax.robot.robot import Robot, panda_urdf
+from fabrax.robot.robot import Robot, resolve_urdf
 from fabrax.robot.urdf import resolve_uri
 
 _centers = jax.jit(sphere_centers)
@@ -19,7 +19,7 @@ _centers = jax.jit(sphere_centers)
 
 def visual_urdf(robot_cfg: dict) -> yourdfpy.URDF:
     """The robot's URDF with its visual meshes (package:// resolved as fabrax resolves them)."""
-    path = Path(robot_cfg.get("urdf") or panda_urdf())
+    path = Path(resolve_urdf(robot_cfg.get("urdf")))
     return yourdfpy.URDF.load(str(path), load_meshes=True, build_scene_graph=True, filename_handler=lambda fname: resolve_uri(fname, path.parent))
 
 
