@@ -193,3 +193,10 @@ def test_mpinets_faithful_problems_are_carried_to_another_arm():
         tcp = np.asarray(p.goal_pose[0]) + fit.offset * _z_axis(np.asarray(p.goal_pose[1]))
         np.testing.assert_allclose(tcp, p.meta["tcp_goal"][0], atol=1e-6)
         assert (p.meta["family"], p.meta["problem_type"]) == mpinets.draw(0, int(p.name.split("/")[-1]))
+
+
+def test_a_problem_the_generator_cannot_pose_is_one_invalid_problem(panda):
+    """A class that finds no valid problem in its tries is reported invalid with the reason; the set
+    goes on (the bench counts it in its summary)."""
+    p = procedural._one(panda, "bookshelf", np.random.default_rng(0), "bookshelf/0000", "panda_hand", tries=0)
+    assert not p.valid and p.reason == "could not generate a valid 'bookshelf' problem in 0 tries" and p.name == "bookshelf/0000"

@@ -263,7 +263,8 @@ def _one(robot: Robot, cls: str, rng: np.random.Generator, name: str, frame: str
             return make_problem(robot, start, scene, goal_q=solutions[0], name=name, kind=cls)
         except ValueError:
             continue  # e.g. the ready posture collides with this scene: draw another
-    raise ValueError(f"could not generate a valid '{cls}' problem in {tries} tries")
+    reason = f"could not generate a valid '{cls}' problem in {tries} tries"  # reported invalid; the others go on
+    return Problem(np.asarray(ready, np.float64), from_dict({"obstacles": []}), name=name, kind=cls, valid=False, reason=reason)
 
 
 def generate(robot: Robot, family: str, classes=None, n: int = 100, seed: int = 0, frame: str | None = None) -> list[Problem]:
