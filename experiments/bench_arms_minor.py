@@ -1,6 +1,6 @@
 """The batched fabric step with self-collision run arms-minor and per arm, compiled side by side.
 
-The self-collision term's batching rule (`fabrax.fabrics.terms.ARMS_MINOR`) puts the arms on the
+The self-collision term's batching rule (the term's static `arms_minor` option) puts the arms on the
 minor axis under `jax.vmap`. This bench compiles the step of `bench_fabric_step.py` (the full Panda
 fabric on its 20-cuboid bookshelf, 200 steps in a `lax.scan`) twice, with the rule on and off, and
 calls the two alternately, so that the VM's drift hits both alike; it reports the median of the
@@ -25,12 +25,18 @@ from bench_fabric_step import bookshelf_scene
 import fabrax  # noqa: F401  (XLA flags before jax)
 from fabrax import config
 from fabrax import scene as sc
-from fabrax.fabrics import terms
 from fabrax.rollout import integrate
 
 
-def compiled_step(fabric, params, scene, q0, qd0, steps: int, arms_minor: bool):
-    """The scanned step over a batch of arms, compiled with the self-collision rule on or off."""
+def with_layout(robot, arms_minor: bool):
+    """The robot's fabric with the self-collision term's batched layout set (`arms_minor`)."""
+    cfg = config.load("fabric", "panda")
+    terms = {k: ({**t, "arms_minor": arms_minor} if t.get("type") == "self_collision" else t) for k, t in cfg["terms"].items()}
+    return config.load_fabric(robot, {**cfg, "terms": terms})
+
+
+def compiled_step(fabric, params, scene, q0, qd0, steps: int):
+    """The scanned step over a batch of arms, compiled."""
 
     def run(q, qd):
         def body(c, _):
@@ -39,12 +45,7 @@ def compiled_step(fabric, params, scene, q0, qd0, steps: int, arms_minor: bool):
 
         return jax.lax.scan(body, (q, qd), None, length=steps)[0]
 
-    saved = terms.ARMS_MINOR
-    terms.ARMS_MINOR = arms_minor
-    try:
-        return jax.jit(jax.vmap(run)).lower(q0, qd0).compile()
-    finally:
-        terms.ARMS_MINOR = saved
+    return jax.jit(jax.vmap(run)).lower(q0, qd0).compile()
 
 
 def main() -> None:
@@ -61,12 +62,12 @@ def main() -> None:
     rows = []
     for name in args.robots.split(","):
         robot = config.load_robot(name)
-        fabric, params = config.load_fabric(robot)
-        p = fabric.with_joint_goal(params, jnp.asarray([0.0, 0.5, 0.0, -1.6, 0.0, 3.1, 0.785]))
+        fabrics = {v: with_layout(robot, v) for v in (False, True)}
+        goal = jnp.asarray([0.0, 0.5, 0.0, -1.6, 0.0, 3.1, 0.785])
         for b in [int(x) for x in args.batches.split(",")]:
             q0 = jnp.asarray(ready + np.random.default_rng(b).normal(scale=0.05, size=(b, 7)), jnp.float32)
             qd0 = jnp.zeros_like(q0)
-            fns = {v: compiled_step(fabric, p, scene, q0, qd0, args.steps, v) for v in (False, True)}
+            fns = {v: compiled_step(f, f.with_joint_goal(p, goal), scene, q0, qd0, args.steps) for v, (f, p) in fabrics.items()}
             outs = {v: jax.block_until_ready(f(q0, qd0)) for v, f in fns.items()}
             cpu = {False: [], True: []}
             for k in range(args.pairs):

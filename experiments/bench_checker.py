@@ -1,5 +1,5 @@
 """Validity-check speed for sampling planners: the exact checker through JAX against its numba copy
-(`fabrax.problems.native_checker`), per single state (an OMPL state callback), per motion of ~30
+(`fabrax.check.native`), per single state (an OMPL state callback), per motion of ~30
 states (an OMPL edge at 1/32 rad) and per large batch, on generated MPiNets-like and MBM-like scenes
 (train seeds: no data needed); then states checked per second inside OMPL's RRTConnect loop when
 OMPL is installed. Writes JSON and a markdown table.
@@ -21,8 +21,8 @@ import numpy as np
 import fabrax  # noqa: F401  (XLA flags before jax)
 from fabrax.config import load_robot
 from fabrax.problems import procedural
-from fabrax.problems.clearance import state_clearances
-from fabrax.problems.native_checker import NativeChecker
+from fabrax.check.clearance import state_clearances
+from fabrax.check.native import NativeChecker
 from fabrax.scene import COMMON_CAPACITY
 from fabrax.scene.sdf import primitive_mask
 
@@ -83,7 +83,7 @@ def main() -> None:
         from fabrax.bench import ompl
 
         if "RRTConnect" in ompl.available():
-            from fabrax.bench.cli import with_ik_goal
+            from fabrax.problems.load import with_ik_goal
 
             for cls in ("cubby", "dresser", "tabletop"):
                 for p in procedural.generate(robot, "mpinets_like", [cls], args.ompl, 10_000):

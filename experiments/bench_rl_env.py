@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 
 import fabrax  # noqa: F401  (XLA flags before jax)
-from fabrax.problems.clearance import state_clearances
+from fabrax.check.clearance import state_clearances
 from fabrax.rl import make_env
 from fabrax.rl.scripted import episode
 

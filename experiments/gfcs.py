@@ -43,7 +43,7 @@ def main(dcfg: DictConfig) -> None:
     import jax
 
     from fabrax import config
-    from fabrax.bench.cli import gfcs_config
+    from fabrax.bench.methods.gfcs import gfcs_config
     from fabrax.bench.methods import GFCSMethod
     from fabrax.bench.metrics import Goal
     from fabrax.bench.runner import run, summary_table, write
@@ -123,7 +123,7 @@ def reactive(cfg: dict, robot, fabric, params, problems, rows) -> dict:
     from fabrax.bench.metrics import Goal, evaluate
     from fabrax.planners.gfcs.cost import GFCOP
     from fabrax.planners.gfcs.reactive import blocking_cuboids, reexecute, with_obstacles
-    from fabrax.problems.checker import check_path
+    from fabrax.check.checker import check_path
 
     steps = int(round(cfg["t_max"] / cfg["dt"]))
     final_pose, via = cfg["method"]["final_pose"], cfg["method"]["via_tolerance"]

@@ -29,7 +29,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from fabrax import config
     from fabrax.problems import batch
-    from fabrax.problems.checker import check_path
+    from fabrax.check.checker import check_path
     from fabrax.problems.generators import demo_problem
     from fabrax.rollout import reach
 

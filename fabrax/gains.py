@@ -28,7 +28,7 @@ def check_value(term: str, key: str, value, scalar: bool = True) -> None:
         raise ValueError(f"{where} must be finite numbers, got {value!r}")
 
 
-NOT_GAINS = {"type", "frame", "resolution", "name", "n"}  # term config keys that are not numbers
+NOT_GAINS = {"type", "frame", "resolution", "arms_minor", "name", "n"}  # term config keys that are not numbers
 VECTORS = {"offsets", "target", "target_pos", "target_quat", "point_weights"}  # term parameters that take several numbers
 
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from fabrax import config
 from fabrax.planners.gfcs import GFCOP, GFCSConfig, solve
-from fabrax.problems.checker import check_path
+from fabrax.check.checker import check_path
 
 robot = config.load_robot("panda_mbm")
 fabric, params = config.load_fabric(robot, "panda")

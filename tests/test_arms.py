@@ -14,7 +14,7 @@ from fabrax import config
 from fabrax import scene as sc
 from fabrax.fabrics import unforced
 from fabrax.problems import batch, procedural
-from fabrax.problems.checker import check_path
+from fabrax.check.checker import check_path
 from fabrax.robot import resolve_urdf
 from fabrax.robot.kinematics import frame_pose
 from fabrax.rollout import integrate, reach

@@ -202,7 +202,7 @@ def test_generators_deterministic_and_valid(panda, family, cls):
     assert not np.array_equal(np.asarray(a[0].scene.cuboids.center), np.asarray(c[0].scene.cuboids.center))
     if family == "mpinets_like":
         assert a[0].goal_pose is not None and a[0].goal_q is None
-        from fabrax.bench.cli import with_ik_goal
+        from fabrax.problems.load import with_ik_goal
 
         ik = with_ik_goal(panda, a[0], "panda_hand")  # a joint goal for joint-space methods; the pose stays the goal
         assert ik.valid and ik.goal_pose is a[0].goal_pose

@@ -276,22 +276,25 @@ def test_sphere_padding_changes_nothing(fabric, panda, monkeypatch, resolution):
         p = f64(fab.with_joint_goal(params, jnp.asarray(GOAL)))
         scene, q, qd = f64((sc.from_dict(BAR), jnp.asarray(READY), jnp.asarray(V0)))
         padded = fab.evaluate(p, scene, q, qd)
-        monkeypatch.setattr(T, "SPHERE_LANES", 1)
+        monkeypatch.setattr(T.base, "SPHERE_LANES", 1)
         plain = fab.evaluate(p, scene, q, qd)
-    assert T._spheres(robot)[1].shape[0] == n
+    assert T.base._spheres(robot)[1].shape[0] == n
     assert float(plain.terms.clearance) < 0.25  # the obstacle term is active
     for a, b in ((padded.spec.M, plain.spec.M), (padded.spec.f, plain.spec.f), (padded.terms.clearance, plain.terms.clearance)):
         assert np.allclose(a, b, rtol=1e-12, atol=1e-12)
 
 
-@pytest.mark.parametrize("resolution", ["link", "sphere"])
-def test_self_collision_batched_equals_per_arm(panda, resolution):
+@pytest.mark.parametrize("resolution,arms_minor", [("link", None), ("sphere", None), ("link", False)])
+def test_self_collision_batched_equals_per_arm(panda, resolution, arms_minor):
     """Under `jax.vmap` the self-collision term runs with the arms as the minor axis (its own batching
-    rule); the contributions equal the term applied arm by arm, with shared and with per-arm
-    parameters, and with a vmap of a vmap; so do its gradients."""
+    rule; `arms_minor=None` picks it on the CPU, False keeps vmap's layout); the contributions equal
+    the term applied arm by arm, with shared and with per-arm parameters, and with a vmap of a vmap;
+    so do its gradients. A bad `arms_minor` is refused by name."""
     from fabrax.fabrics.terms import self_collision
 
-    term = self_collision(resolution=resolution, reach=0.5)  # long range: most pairs active
+    with pytest.raises(ValueError, match="arms_minor must be true, false or null"):
+        self_collision(arms_minor="yes")
+    term = self_collision(resolution=resolution, reach=0.5, arms_minor=arms_minor)  # long range: most pairs active
     rng = np.random.default_rng(2)
     qs = jnp.asarray(rng.uniform(panda.lower, panda.upper, (6, 7)), jnp.float32)
     qds = jnp.asarray(rng.normal(size=(6, 7)), jnp.float32)

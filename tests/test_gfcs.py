@@ -290,7 +290,8 @@ def test_reactive_study_refuses_a_saved_run_with_other_settings(tmp_path):
 
 def test_config_defaults_are_the_method_preset():
     """One set of defaults: `GFCSConfig()` is what `fabrax bench method=gfcs` runs."""
-    from fabrax.bench.cli import compose, gfcs_config
+    from fabrax.bench.cli import compose
+    from fabrax.bench.methods.gfcs import gfcs_config
 
     cfg = compose(["method=gfcs"])
     assert gfcs_config(cfg["method"], cfg) == GFCSConfig(dt=cfg["dt"], t_max=cfg["t_max"]) == GFCSConfig()

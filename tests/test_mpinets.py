@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from fabrax.problems import mpinets
-from fabrax.problems.clearance import state_clearances
+from fabrax.check.clearance import state_clearances
 from fabrax.robot.kinematics import frame_pose
 
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from fabrax.problems import procedural
-from fabrax.problems.clearance import state_clearances
+from fabrax.check.clearance import state_clearances
 from fabrax.scene import COMMON_CAPACITY, from_dict
 
 pytest.importorskip("numba", reason="numba is not installed (pip install -e '.[bench]')")
@@ -28,7 +28,7 @@ def _scenes(panda):
 
 
 def test_native_clearances_equal_the_exact_checker(panda):
-    from fabrax.problems.native_checker import NativeChecker
+    from fabrax.check.native import NativeChecker
 
     rng = np.random.default_rng(0)
     q = rng.uniform(np.asarray(panda.lower) - 0.05, np.asarray(panda.upper) + 0.05, (1500, panda.dof))  # some outside the limits

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from fabrax.config import load_robot
-from fabrax.problems.clearance import state_clearances
+from fabrax.check.clearance import state_clearances
 from fabrax.rl import build_pool, env_config, make_env, sample_episode
 from fabrax.rl.observations import cell_centres, cell_index, grid_points, intrinsic_reward, keypoint_distance
 from fabrax.robot.kinematics import frame_pose, keypoints, keypoints_at_pose

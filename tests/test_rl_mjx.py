@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from fabrax.problems.clearance import state_clearances
+from fabrax.check.clearance import state_clearances
 from fabrax.rl import make_env
 from fabrax.robot.kinematics import sphere_centers
 from fabrax.robot.mjcf import to_mjcf

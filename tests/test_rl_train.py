@@ -139,7 +139,7 @@ def test_checkpoint_holds_the_trained_parameters_and_resume_continues(run, tmp_p
 
 
 def test_bench_method_runs_a_checkpoint_and_refuses_bad_ones(run, panda, tmp_path):
-    from fabrax.bench.cli import rl_guide_method
+    from fabrax.bench.methods.rl_guide import build as rl_guide_method
     from fabrax.bench.runner import run as bench_run
     from fabrax.config import load
     from fabrax.problems.generators import demo_problem
@@ -159,17 +159,17 @@ def test_bench_method_runs_a_checkpoint_and_refuses_bad_ones(run, panda, tmp_pat
     assert method.env.cfg.episode_s == 20.0 != TINY["env"]["episode_s"]  # the thesis' evaluation, not the training episodes
     robot = load("robot", "panda")
     other = {**cfg, "robot": {**robot, "spheres": {**robot["spheres"], "budget": 40}}}
-    with pytest.raises(SystemExit, match=r"trained with other robot settings \(spheres.budget\)"):
+    with pytest.raises(ValueError, match=r"trained with other robot settings \(spheres.budget\)"):
         rl_guide_method({"name": "rl_guide", "checkpoint": str(run_dir), "scripted": None}, other, panda)
-    with pytest.raises(SystemExit, match="method.episode_s must be a positive number"):
+    with pytest.raises(ValueError, match="method.episode_s must be a positive number"):
         rl_guide_method({"name": "rl_guide", "checkpoint": str(run_dir), "scripted": None, "episode_s": 0}, cfg, panda)
-    with pytest.raises(SystemExit, match="does not exist"):
+    with pytest.raises(ValueError, match="does not exist"):
         rl_guide_method({"name": "rl_guide", "checkpoint": str(tmp_path / "nothing"), "scripted": None}, cfg, panda)
     broken = tmp_path / "broken"
     shutil.copytree(run_dir, broken)
     for f in (broken / "checkpoints").rglob("manifest.ocdbt"):
         f.write_bytes(b"not a checkpoint")
-    with pytest.raises(SystemExit, match="unreadable guide checkpoint"):
+    with pytest.raises(ValueError, match="unreadable guide checkpoint"):
         rl_guide_method({"name": "rl_guide", "checkpoint": str(broken), "scripted": None}, cfg, panda)
 
 

@@ -165,7 +165,7 @@ def test_closest_link_pairs_is_the_brute_force_minimum(robot_name, panda, reques
     link pair whose gap is the smallest over all of its checked sphere pairs (random states, within
     the packing's resolution), per arm and arms-minor alike. panda_mbm (the MotionBenchMaker spheres, up to 15 chunks per link
     pair) reads its spheres from FABRAX_DATA."""
-    from fabrax.fabrics.terms import _closest_minor, _search_tables, closest_link_pairs
+    from fabrax.robot.collision import closest_link_pairs, closest_minor, search_tables
 
     if robot_name == "panda_mbm":
         request.getfixturevalue("shared_data")  # skips without the data
@@ -181,7 +181,7 @@ def test_closest_link_pairs_is_the_brute_force_minimum(robot_name, panda, reques
     bi, bj = jax.jit(jax.vmap(lambda x: closest_link_pairs(robot, x.T)))(xs)
     assert bi.shape == (64, len(groups))
     # the arms-minor search (the self-collision term's under vmap) picks the very same pairs
-    mi, mj = jax.jit(lambda xt: _closest_minor(xt, *_search_tables(robot)))(jnp.moveaxis(xs, 0, -1).swapaxes(0, 1))
+    mi, mj = jax.jit(lambda xt: closest_minor(xt, *search_tables(robot)))(jnp.moveaxis(xs, 0, -1).swapaxes(0, 1))
     assert np.array_equal(np.asarray(mi).T, np.asarray(bi)) and np.array_equal(np.asarray(mj).T, np.asarray(bj))
     for x, ci, cj in zip(np.asarray(xs, np.float64), np.asarray(bi), np.asarray(bj)):
         gap = lambda a, b: np.linalg.norm(x[a] - x[b], axis=-1) - r[a] - r[b]  # noqa: E731
@@ -205,9 +205,9 @@ def test_bad_robot_inputs(tmp_path):
 
 def test_self_collision_rows_are_the_jacobians_difference(panda, planar):
     """The self-collision rows u_a = (J_i - J_j)[:, a]^T n, built from the joint axes and origins alone
-    (`terms._pair_rows`), equal the difference of the point Jacobians for every pair of spheres on
+    (`terms.self_collision._pair_rows`), equal the difference of the point Jacobians for every pair of spheres on
     two frames, with a revolute and a prismatic arm; a joint that moves both spheres gives exactly 0."""
-    from fabrax.fabrics.terms import _pair_rows
+    from fabrax.fabrics.terms.self_collision import _pair_rows
     from fabrax.soa import cross0, dot0
 
     with jax.enable_x64(True):

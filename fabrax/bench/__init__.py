@@ -6,11 +6,11 @@ command line before jax and the checker load."""
 import importlib
 
 _EXPORTS = {
-    "RESOLUTION": "fabrax.problems.checker",
-    "CheckResult": "fabrax.problems.checker",
-    "check_path": "fabrax.problems.checker",
-    "densify": "fabrax.problems.checker",
-    "state_clearances": "fabrax.problems.clearance",
+    "RESOLUTION": "fabrax.check.checker",
+    "CheckResult": "fabrax.check.checker",
+    "check_path": "fabrax.check.checker",
+    "densify": "fabrax.check.checker",
+    "state_clearances": "fabrax.check.clearance",
 }
 __all__ = sorted(_EXPORTS)
 

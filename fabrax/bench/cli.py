@@ -8,7 +8,6 @@ Sweeps (hydra multirun, one run directory per job): experiments/bench.py -m ...;
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 import sys
@@ -76,203 +75,28 @@ def check(cfg: dict) -> None:
 
 
 def load_problems(cfg: dict, robot, info: dict | None = None) -> list:
-    """The run's problems; `info` (if given) receives how a generated set was drawn (mpinets: how
-    many were drawn, dropped as unsolvable, failed to generate)."""
-    kind = cfg["problems"]
-    if kind == "mbm":
-        from fabrax.problems.mbm import load_mbm
+    """The run's problems (`fabrax.problems.load`), kept solvable by OMPL RRTConnect for
+    problems=mpinets; a one-line error for a missing planner or a bad setting."""
+    from fabrax.bench.ompl import available, solvable
+    from fabrax.problems.load import load_problems as load
 
-        return load_mbm(robot, cfg["data_dir"], cfg["classes"], cfg["split"], cfg["limit"])
-    if kind in ("mbm_like", "mpinets_like"):
-        from fabrax.problems import procedural
-
-        n = cfg["limit"] or 100
-        seed = cfg["seed"] + (0 if cfg["split"] != "train" else 10_000)
-        problems = procedural.generate(robot, kind, cfg["classes"], n, seed, frame=cfg["frame"])
-        return [with_ik_goal(robot, p, cfg["frame"]) for p in problems] if cfg.get("ik_goals") else problems
-    if kind == "mpinets":
-        drawn = mpinets_set(cfg, robot)
-        if info is not None:
-            info.update(drawn=drawn.drawn, kept=len(drawn.problems), unsolvable=len(drawn.dropped), failed=len(drawn.failed), solvable=drawn.solvable)
-        problems = drawn.problems
-        return [with_ik_goal(robot, p, cfg["frame"]) for p in problems] if cfg.get("ik_goals") else problems
-    raise SystemExit(f"fabrax bench: problems must be mbm, mpinets, mbm_like or mpinets_like, got '{kind}'")
-
-
-def mpinets_set(cfg: dict, robot, progress: bool | None = None):
-    """The MπNets-faithful set of the run (`fabrax.problems.mpinets`): `limit` problems (default 600),
-    test seed `seed`, train seed `seed` + 10000, each kept only if OMPL RRTConnect solves it from its
-    start to the generator's goal configuration within `solvable_s` (MπNets keeps only problems a
-    global planner solves); cached under $FABRAX_CACHE/problems."""
-    from fabrax._environment import cache_root
-    from fabrax.problems import mpinets
-
-    if cfg["split"] == "all":
-        raise SystemExit("fabrax bench: problems=mpinets has a train and a test split, not all")
-    budget = cfg.get("solvable_s")
-    check, key = None, None
-    if budget:
-        from fabrax.bench.ompl import available
-
-        if "RRTConnect" not in available():
-            hint = "install OMPL (pip install -e '.[bench]') or set solvable_s=null"
-            raise SystemExit(f"fabrax bench: problems=mpinets keeps only problems OMPL RRTConnect solves; {hint}")
-        check, key = _solvable(budget), f"RRTConnect {float(budget)} s, exact checker"
-    show = cfg.get("progress", True) if progress is None else progress
-    bar = _Progress(int(cfg["limit"] or 600)) if show else None
-    seed = cfg["seed"] + (10_000 if cfg["split"] == "train" else 0)
+    if cfg["problems"] == "mpinets" and cfg.get("solvable_s") and cfg["split"] != "all" and "RRTConnect" not in available():
+        hint = "install OMPL (pip install -e '.[bench]') or set solvable_s=null"
+        raise SystemExit(f"fabrax bench: problems=mpinets keeps only problems OMPL RRTConnect solves; {hint}")
     try:
-        out = mpinets.generate(
-            robot, int(cfg["limit"] or 600), seed, cfg["classes"], cfg.get("types"), cfg["frame"], check, key, cache_root() / "problems", bar
-        )
-    finally:
-        if bar is not None:
-            bar.close()
-    return out
-
-
-class _Progress:
-    def __init__(self, n: int):
-        from tqdm import tqdm
-
-        self.bar = tqdm(total=n, desc="generating mpinets problems", unit="problem")
-
-    def __call__(self, kept: int, drawn: int) -> None:
-        self.bar.n = kept
-        self.bar.set_postfix(drawn=drawn, refresh=True)
-
-    def close(self) -> None:
-        self.bar.close()
-
-
-def _solvable(budget_s: float):
-    def check(robot, p) -> bool:
-        import dataclasses
-
-        import numpy as np
-
-        from fabrax.bench.ompl import plan
-
-        path, _ = plan(robot, dataclasses.replace(p, goal_q=np.asarray(p.meta["goal_q"])), "RRTConnect", budget_s, False, 1.0 / 32.0)
-        return path is not None
-
-    return check
-
-
-def with_ik_goal(robot, p, frame: str):
-    """A pose-goal problem with a joint goal added: the collision-free IK solution nearest its start
-    (seeded by the problem's name), for joint-space methods (GFCS, OMPL); the pose stays the goal
-    that pose and keypoint success are judged against. Without a solution the problem is marked
-    invalid (reported, not run)."""
-    import dataclasses
-
-    import numpy as np
-
-    from fabrax.problems.generators import ik_goal
-
-    if p.goal_q is not None or p.goal_pose is None:
-        return p
-    if "goal_q" in p.meta:  # the generator's own goal configuration (mpinets: the one its solvability check planned to)
-        return dataclasses.replace(p, goal_q=np.asarray(p.meta["goal_q"], np.float64))
-    goal = ik_goal(robot, p, frame)
-    if goal is None:
-        return dataclasses.replace(p, valid=False, reason="no collision-free IK solution of the goal pose")
-    return dataclasses.replace(p, goal_q=goal)
-
-
-def gfcs_config(method: dict, cfg: dict):
-    """GFCS solver settings from a method config (configs/method/gfcs.yaml) and the run's dt and t_max."""
-    from fabrax.planners.gfcs import GFCSConfig
-
-    keys = ("n_commands", "population", "batches", "std_init", "stop_after", "patience", "via_tolerance", "final_pose", "length_weight", "direct")
-    return GFCSConfig(**{k: method[k] for k in keys}, dt=cfg["dt"], t_max=cfg["t_max"])
+        return load(cfg, robot, info, solvable=solvable)
+    except ValueError as e:
+        raise SystemExit(f"fabrax bench: {e}") from None
 
 
 def make_method(cfg: dict, robot):
-    from fabrax.bench.methods import FabricMethod, GFCSMethod, OMPLMethod
+    """The run's method (`fabrax.bench.methods`); a bad method setting ends in one line."""
+    from fabrax.bench.methods import make_method as make
 
-    m = dict(cfg["method"])
-    kind = m.pop("type")
-    if kind == "fabric":
-        fabric, params = config.load_fabric(robot, {**cfg["fabric"], "goal_frame": cfg["frame"]})
-        return FabricMethod(fabric, params, dt=cfg["dt"], t_max=cfg["t_max"], **m)
-    if kind == "gfcs":
-        fabric, params = config.load_fabric(robot, {**cfg["fabric"], "goal_frame": cfg["frame"]})
-        gfcs_cfg = gfcs_config(m, cfg)
-        learned = {}
-        if m.get("run"):  # a trained sampler from an experiments/gfcs.py run
-            from fabrax.planners.gfcs.selfsup import load_run
-
-            try:
-                learned = dict(zip(("learner", "selfsup", "encoding"), load_run(m["run"], robot, gfcs_cfg.n_commands)))
-            except (FileNotFoundError, ValueError) as e:
-                raise SystemExit(f"fabrax bench: {e}") from None
-        batch = m.get("batch_size", 1)
-        if not isinstance(batch, int) or isinstance(batch, bool) or batch < 1:
-            raise SystemExit(f"fabrax bench: method.batch_size must be a positive integer, got {batch!r}")
-        return GFCSMethod(fabric, params, gfcs_cfg, m["name"], tuple(m["report"]), cfg["seed"], **learned, batch_size=batch)
-    if kind == "ompl":
-        return OMPLMethod(dt=cfg["dt"], **m)
-    if kind == "vamp":
-        from fabrax.bench.methods import VAMPMethod
-        from fabrax.bench.vamp import robot_module
-
-        try:
-            robot_module(robot)
-        except ValueError as e:
-            raise SystemExit(f"fabrax bench: {e}") from None
-        return VAMPMethod(dt=cfg["dt"], **m)
-    if kind == "rl_guide":
-        return rl_guide_method(m, cfg, robot)
-    raise SystemExit(f"fabrax bench: unknown method type '{kind}'")
-
-
-def rl_guide_method(m: dict, cfg: dict, robot):
-    """The RL guide from a checkpoint, or (scripted=switch) the env's pure fabric; its env settings
-    are the checkpoint's (robot, fabric, env), else the environment's defaults with this run's robot
-    and fabric."""
-    from fabrax.bench.methods import RLGuideMethod
-    from fabrax.rl.config import env_config
-    from fabrax.rl.env import FabricGuideEnv
-
-    if m.get("scripted") not in (None, "switch"):
-        raise SystemExit(f"fabrax bench: method.scripted must be null or switch, got {m['scripted']!r}")
-    if m.get("checkpoint") is None and m.get("scripted") is None:
-        raise SystemExit("fabrax bench: method=rl_guide needs method.checkpoint=<experiments/rl.py run directory> (or method.scripted=switch)")
-    act, env_settings, fabric_cfg = None, {}, {**cfg["fabric"], "goal_frame": cfg["frame"]}
-    if m.get("checkpoint") is not None:
-        from fabrax.rl.policy import load_guide
-
-        try:
-            guide = load_guide(m["checkpoint"])
-        except ValueError as e:
-            raise SystemExit(f"fabrax bench: {e}") from None
-        act, env_settings, fabric_cfg = guide.act, dict(guide.settings["env"]), guide.settings["fabric"]
-        trained = guide.settings["robot"]
-        if trained["name"] != robot.name:
-            raise SystemExit(f"fabrax bench: the guide was trained on robot '{trained['name']}'; run it with robot={trained['name']}")
-        ours = json.loads(json.dumps(cfg.get("robot") or config.load("robot", robot.name)))
-        differ = _differing(json.loads(json.dumps(trained)), ours)
-        if differ:  # e.g. another sphere budget: other observation shapes, every problem would fail
-            raise SystemExit(f"fabrax bench: the guide was trained with other robot settings ({', '.join(differ)}); set them as in its settings.json")
-    episode_s = m.get("episode_s", 20.0)
-    if isinstance(episode_s, bool) or not isinstance(episode_s, (int, float)) or not episode_s > 0:
-        raise SystemExit(f"fabrax bench: method.episode_s must be a positive number of seconds, got {episode_s!r}")
-    env_settings = {**env_settings, "episode_s": float(episode_s)}  # the thesis' evaluation, whatever the training episodes were
-    env_cfg = env_config(env_settings)
-    fabric, params = config.load_fabric(robot, fabric_cfg)
-    env = FabricGuideEnv(fabric, params, None, env_cfg)
-    return RLGuideMethod(env, act, m["name"], m.get("scripted"), int(m.get("batch_size", 32)))
-
-
-def _differing(a, b, prefix: str = "") -> list[str]:
-    """Dotted keys whose values differ between two nested mappings; two file paths with the same
-    file name count as equal (a data folder may sit elsewhere on another machine)."""
-    if isinstance(a, dict) and isinstance(b, dict):
-        return [d for k in sorted(set(a) | set(b)) for d in _differing(a.get(k), b.get(k), f"{prefix}{k}.")]
-    if isinstance(a, str) and isinstance(b, str) and "/" in a + b:
-        return [] if Path(a).name == Path(b).name else [prefix.rstrip(".")]
-    return [] if a == b else [prefix.rstrip(".")]
+    try:
+        return make(cfg, robot)
+    except ValueError as e:
+        raise SystemExit(f"fabrax bench: {e}") from None
 
 
 def run_bench(cfg: dict, out: Path) -> list[dict]:

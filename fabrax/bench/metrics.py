@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
-from fabrax.problems.checker import check_path
+from fabrax.check.checker import check_path
 from fabrax.problems.problem import Problem
 from fabrax.robot.kinematics import frame_path, keypoints
 from fabrax.robot.robot import Robot

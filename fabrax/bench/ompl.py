@@ -4,7 +4,7 @@ Planners run on the joint space with the benchmark's own checker: a state is
 valid when its collision spheres clear the scene and each other and it is
 within the joint limits; a motion validator checks every edge at the checker's
 resolution. Both call the numba-compiled copy of the checker
-(`fabrax.problems.native_checker`), not JAX, so that a callback costs
+(`fabrax.check.native`), not JAX, so that a callback costs
 microseconds, as OMPL's C++ users' checkers do. OMPL 1.7.0's Python module crashes
 while the interpreter shuts down, so programs that load it end with
 `os._exit` (see `fabrax.bench.cli`).
@@ -16,8 +16,8 @@ import time
 
 import numpy as np
 
-from fabrax.problems.checker import densify
-from fabrax.problems.native_checker import NativeChecker
+from fabrax.check.checker import densify
+from fabrax.check.native import NativeChecker
 from fabrax.problems.problem import Problem
 from fabrax.robot.robot import Robot
 
@@ -130,3 +130,17 @@ def plan(robot: Robot, problem: Problem, planner: str, budget_s: float, simplify
         info["simplify_s"] = time.perf_counter() - t0
     waypoints = np.array([as_array(path.getState(i)) for i in range(path.getStateCount())])
     return waypoints, {**info, "validity_calls": check.calls, "states_checked": check.states}
+
+
+def solvable(budget_s: float):
+    """check(robot, problem) -> bool: RRTConnect finds a path from the start to the generator's goal
+    configuration (`meta["goal_q"]`) within budget_s under the exact checker (the MπNets-faithful
+    set's filter, `fabrax.problems.load`)."""
+
+    def check(robot: Robot, p: Problem) -> bool:
+        import dataclasses
+
+        path, _ = plan(robot, dataclasses.replace(p, goal_q=np.asarray(p.meta["goal_q"])), "RRTConnect", budget_s, False, 1.0 / 32.0)
+        return path is not None
+
+    return check

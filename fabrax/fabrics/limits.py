@@ -17,13 +17,9 @@ import jax.numpy as jnp
 
 from fabrax.fabrics.linalg import cholesky_solve
 from fabrax.fabrics.spec import Spec
+from fabrax.robot.limits import max_acceleration
 from fabrax.robot.robot import Robot
 from fabrax.soa import matvec
-
-
-def max_acceleration(robot: Robot, dt: float) -> jax.Array:
-    """a' = min(a_max, dt j_max / 2) per joint (eq. 3.8)."""
-    return jnp.minimum(robot.acceleration, 0.5 * dt * robot.jerk)
 
 
 def acceleration_box(robot: Robot, q: jax.Array, qd: jax.Array, dt: float, margin: float = 1e-4):

@@ -7,7 +7,7 @@ import zlib
 import jax.numpy as jnp
 import numpy as np
 
-from fabrax.problems.clearance import state_clearances
+from fabrax.check.clearance import state_clearances
 from fabrax.problems.problem import Problem, make_problem
 from fabrax.robot.ik import solve_ik
 from fabrax.robot.kinematics import frame_pose

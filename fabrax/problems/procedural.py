@@ -35,6 +35,8 @@ MBM_LIKE = ("table_pick", "table_under_pick", "box", "bookshelf", "cage")
 MPINETS_LIKE = ("cubby", "merged_cubby", "dresser", "tabletop")
 READY = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])  # the Panda's ready posture
 HOVER = 0.16  # m between a surface and the hand frame of a downward grasp (fingertips ~3 cm above)
+
+
 def _box(center, size, yaw=0.0, name="box"):
     return {"type": "cuboid", "name": name, "center": [float(v) for v in center], "quat_wxyz": _yaw(yaw), "size": [float(v) for v in size]}
 

@@ -21,8 +21,8 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from fabrax.fabrics.limits import max_acceleration
-from fabrax.problems.clearance import state_clearances
+from fabrax.robot.limits import max_acceleration
+from fabrax.check.clearance import state_clearances
 from fabrax.problems.problem import Problem
 from fabrax.robot.kinematics import point_kinematics
 from fabrax.robot.robot import Robot

@@ -36,7 +36,7 @@ from flax import struct
 
 from fabrax.config import load_fabric, load_robot
 from fabrax.fabrics import ArmFabric, Params
-from fabrax.problems.clearance import state_clearances
+from fabrax.check.clearance import state_clearances
 from fabrax.problems.mbm import load_mbm
 from fabrax.problems.procedural import MPINETS_LIKE, generate
 from fabrax.rl.config import EnvConfig, env_config

@@ -364,7 +364,9 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
     tool_length = cfg.get("tool_length", 0.0)
     if not isinstance(tool_length, (int, float)) or isinstance(tool_length, bool) or not np.isfinite(tool_length) or tool_length < 0:
         raise ValueError(f"robot.tool_length must be a finite number >= 0 (m), got {tool_length!r}")
-    kp_frame, kp_local = _keypoint_box(cfg.get("keypoints"), ee_frame, frame_names, frame_parent, frame_offset, link_names, s_link, s_frame, s_local, s_radius)
+    kp_frame, kp_local = _keypoint_box(
+        cfg.get("keypoints"), ee_frame, frame_names, frame_parent, frame_offset, link_names, s_link, s_frame, s_local, s_radius
+    )
     mass, com, inertia = frame_inertials(tree)
     return robot.replace(
         effort=f32(tree.effort),

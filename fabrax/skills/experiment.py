@@ -21,7 +21,7 @@ import numpy as np
 from flax import nnx
 
 from fabrax import config
-from fabrax.problems.checker import check_path
+from fabrax.check.checker import check_path
 from fabrax.robot.kinematics import frame_path
 from fabrax.scene.primitives import empty, from_dict
 from fabrax.skills import demos, execute, geodesic, metric, spline, vae

@@ -306,12 +306,13 @@ def load_results(run_dir: str | Path) -> tuple[dict, list[dict], dict]:
 
 def problems_of(meta: dict, robot) -> dict[str, Problem]:
     """The problems a run was made on, rebuilt from its resolved config."""
-    from fabrax.bench.cli import load_problems
+    from fabrax.bench.ompl import solvable
+    from fabrax.problems.load import load_problems
 
     cfg = dict(meta["config"])
     if "classes" not in cfg:  # experiments/gfcs.py: one class, test split
         cfg.update(classes=[cfg["class_name"]], split="test", limit=cfg.get("test_limit"))
-    return {p.name: p for p in load_problems(cfg, robot)}
+    return {p.name: p for p in load_problems(cfg, robot, solvable=solvable)}
 
 
 def results_browser(viewer: Viewer, run_dirs: list[str | Path]) -> dict:

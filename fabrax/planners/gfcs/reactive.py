@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from fabrax.planners.gfcs.cost import GFCOP
-from fabrax.problems.checker import check_path
+from fabrax.check.checker import check_path
 from fabrax.robot.kinematics import sphere_centers
 from fabrax.rollout.rollout import rollout_sequence
 from fabrax.rollout.trajectory import Trajectory

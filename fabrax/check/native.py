@@ -3,7 +3,7 @@ edge at a time (OMPL's validity callbacks), where a JAX dispatch per call would 
 check itself.
 
 The same collision spheres, self-collision pairs, primitives and joint limits as
-`fabrax.problems.clearance.state_clearances` (tested equal on random states):
+`fabrax.check.clearance.state_clearances` (tested equal on random states):
 forward kinematics by the same joint-by-joint composition (Rodrigues' formula
 for revolute joints), then each sphere's signed distance to every primitive
 (box: |max(q, 0)| + min(max q, 0) with q = |R^T (x - c)| - h; solid cylinder:
