@@ -244,3 +244,30 @@ def test_point_kinematics_matches_forward_autodiff(panda, planar):
             assert jnp.allclose(ours.jac, jnp.moveaxis(jax.jacfwd(f)(q), 0, -1), atol=1e-10)
             assert jnp.allclose(ours.xd, xd.T, atol=1e-10)
             assert jnp.allclose(ours.jdqd, jdqd.T, atol=1e-10)
+
+
+def test_orientation_error_is_the_relative_rotation_angle():
+    """`robot.goal.orientation_error` is the angle of target^-1 * q (jaxlie's log), for either
+    quaternion sign and any norm, accurate near 0 (1e-6 rad) where 2 arccos|<a, b>| loses half
+    its digits; the fabric's goal test, the bench's metrics and the RL env share one set of
+    tolerances."""
+    import jaxlie
+
+    from fabrax.bench.metrics import Goal
+    from fabrax.fabrics.arm import ArmFabric
+    from fabrax.rl.config import EnvConfig
+    from fabrax.robot.goal import TOLERANCE, orientation_error
+
+    with jax.enable_x64(True):
+        rng = np.random.default_rng(3)
+        for k in range(20):
+            target = jaxlie.SO3(jnp.asarray(rng.normal(size=4))).normalize()
+            angle = 1e-6 if k == 0 else rng.uniform(0, np.pi)
+            axis = rng.normal(size=3)
+            q = target @ jaxlie.SO3.exp(jnp.asarray(angle * axis / np.linalg.norm(axis)))
+            sign = -1.0 if k % 2 else 1.0
+            got = orientation_error(sign * 3.0 * q.wxyz, target.wxyz)
+            assert abs(float(got) - angle) < 1e-9 * max(1.0, angle / 1e-6)
+    assert Goal().orientation_deg == TOLERANCE.orientation_deg and Goal().position == TOLERANCE.position
+    assert ArmFabric.position_tolerance == TOLERANCE.position and ArmFabric.joint_tolerance == Goal().joint == TOLERANCE.joint
+    assert EnvConfig().success_distance == Goal().keypoints == TOLERANCE.keypoints

@@ -27,6 +27,7 @@ import numpy as np
 
 from fabrax.check.checker import check_path
 from fabrax.problems.problem import Problem
+from fabrax.robot.goal import TOLERANCE, orientation_error
 from fabrax.robot.kinematics import frame_path, keypoints
 from fabrax.robot.robot import Robot
 
@@ -38,10 +39,10 @@ class Goal:
     """Success tolerances, and which of them decides `success`: `auto` is the joint tolerance for
     joint goals and the pose tolerance for pose goals."""
 
-    joint: float = 0.05  # rad
-    position: float = 0.01  # m
-    orientation_deg: float = 15.0
-    keypoints: float = 0.08  # m, mean keypoint distance (thesis §3.4.5)
+    joint: float = TOLERANCE.joint  # rad
+    position: float = TOLERANCE.position  # m
+    orientation_deg: float = TOLERANCE.orientation_deg
+    keypoints: float = TOLERANCE.keypoints  # m, mean keypoint distance (thesis §3.4.5)
     criterion: str = "auto"
 
     def __post_init__(self):
@@ -83,11 +84,10 @@ def goal_errors(robot: Robot, problem: Problem, q_final: np.ndarray, frame: str)
     pos, quat = (np.asarray(a)[0] for a in frame_path(robot, jnp.asarray(q_final[None], jnp.float32), frame))
     target_pos, target_quat = _goal_pose(robot, problem, frame)
     target_quat = np.asarray(target_quat) / np.linalg.norm(target_quat)
-    dot = abs(float(np.dot(quat, target_quat)))
     kp = float(
         _keypoint_error(robot, jnp.asarray(q_final, jnp.float32), *(jnp.asarray(a, jnp.float32) for a in (target_pos, target_quat, pos, quat)))
     )
-    return joint, float(np.linalg.norm(pos - target_pos)), float(2.0 * np.arccos(min(dot, 1.0))), kp
+    return joint, float(np.linalg.norm(pos - target_pos)), float(orientation_error(np.asarray(quat, np.float64), target_quat)), kp
 
 
 def evaluate(

@@ -16,13 +16,13 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-import jaxlie
 import numpy as np
 
 from fabrax import validate
 from fabrax.fabrics.fabric import Fabric, Params
 from fabrax.fabrics.terms import TERMS
 from fabrax.gains import check_config
+from fabrax.robot.goal import TOLERANCE, orientation_error
 from fabrax.robot.kinematics import frame_pose
 from fabrax.robot.robot import Robot
 
@@ -33,9 +33,9 @@ AIM_TERMS = ("goal", "posture", "ee")  # the terms that `with_*goal` set
 @dataclasses.dataclass(frozen=True, eq=False)
 class ArmFabric(Fabric):
     goal_frame: str = "panda_hand"
-    joint_tolerance: float = 0.05  # rad, |q - q_goal|_2
-    position_tolerance: float = 0.01  # m
-    orientation_tolerance: float = float(np.deg2rad(15.0))  # rad
+    joint_tolerance: float = TOLERANCE.joint  # rad, |q - q_goal|_2
+    position_tolerance: float = TOLERANCE.position  # m
+    orientation_tolerance: float = float(np.deg2rad(TOLERANCE.orientation_deg))  # rad
     posture: tuple = ()
     default_posture_weight: float = 1.0
 
@@ -117,11 +117,8 @@ class ArmFabric(Fabric):
         if not self._has("ee"):
             return joint, jnp.inf, jnp.inf
         pose = frame_pose(self.robot, q, self.goal_frame)
-        target = params["ee"]["target_quat"] / jnp.linalg.norm(params["ee"]["target_quat"])
         pos = jnp.linalg.norm(pose.translation() - params["ee"]["target_pos"])
-        rel = jaxlie.SO3(target).inverse() @ pose.rotation()
-        rot = 2.0 * jnp.arctan2(jnp.linalg.norm(rel.wxyz[1:]), jnp.abs(rel.wxyz[0]))
-        return joint, pos, rot
+        return joint, pos, orientation_error(pose.rotation().wxyz, params["ee"]["target_quat"])
 
     def joint_reached(self, params: Params, q: jax.Array, qd: jax.Array | None = None, tolerance: float | None = None) -> jax.Array:
         """The joint-goal test alone (no kinematics): |q - q_goal|_2 within `tolerance` (default joint_tolerance)."""
@@ -172,9 +169,9 @@ def build_arm_fabric(robot: Robot, cfg: dict[str, Any], posture=None) -> ArmFabr
         robot=robot,
         terms=tuple(terms),
         goal_frame=goal_frame,
-        joint_tolerance=float(tol.get("joint", 0.05)),
-        position_tolerance=float(tol.get("position", 0.01)),
-        orientation_tolerance=float(np.deg2rad(tol.get("orientation_deg", 15.0))),
+        joint_tolerance=float(tol.get("joint", TOLERANCE.joint)),
+        position_tolerance=float(tol.get("position", TOLERANCE.position)),
+        orientation_tolerance=float(np.deg2rad(tol.get("orientation_deg", TOLERANCE.orientation_deg))),
         posture=tuple(float(v) for v in np.asarray(posture)),
         energization=cfg.get("energization", "dissipative"),
         default_posture_weight=float(cfg.get("default_posture_weight", 1.0)),

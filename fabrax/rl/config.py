@@ -9,6 +9,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+from fabrax.robot.goal import TOLERANCE
+
 BACKENDS = ("kinematic", "mjx")
 THESIS_BOUNDS = ((-0.75, -1.0, -0.1), (1.5, 1.0, 1.25))  # thesis eq. 3.15: the BPS grid's corners (m)
 GENERATED = ("cuboid_forest", "shelves", "flying_cuboids")
@@ -44,7 +46,7 @@ class EnvConfig:
     ee_translation: float = 0.15  # m: relative hand translation at |action| = 1
     ee_rotation: float = 0.5  # rad: relative hand rotation (axis-angle) at |action| = 1
     switch_threshold: float = 0.5  # the fabric switch latches once its action reads at least this
-    success_distance: float = 0.08  # m: mean keypoint distance of a success (Table 3.5)
+    success_distance: float = TOLERANCE.keypoints  # m: mean keypoint distance of a success (Table 3.5)
     sparse_reward: float = 50.0
     intrinsic_weight: float = 0.3
     collision_penalty: float = 10.0

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -120,6 +121,22 @@ def gfcs_config(method: dict, cfg: dict):
     return GFCSConfig(**{k: method[k] for k in keys}, dt=cfg["dt"], t_max=cfg["t_max"])
 
 
+def learned_sampler(run_dir: Path, robot: Robot, n_commands: int) -> tuple:
+    """(learner, selfsup config, encoding) of an experiments/gfcs.py run directory: its hydra config
+    (.hydra/config.yaml) read here, its sampler by `fabrax.planners.gfcs.selfsup.load_run`."""
+    import yaml
+
+    from fabrax.planners.gfcs.selfsup import load_run
+
+    cfg_file = run_dir / ".hydra" / "config.yaml"
+    if not cfg_file.exists():
+        raise ValueError(f"{run_dir}: not an experiments/gfcs.py run directory (no .hydra/config.yaml)")
+    try:
+        return load_run(run_dir, yaml.safe_load(cfg_file.read_text()), robot, n_commands)
+    except FileNotFoundError as e:
+        raise ValueError(str(e)) from None
+
+
 def build(m: dict, cfg: dict, robot: Robot) -> GFCSMethod:
     """`type: gfcs` (configs/method/gfcs*.yaml); `run:` loads a trained sampler of an
     experiments/gfcs.py run."""
@@ -129,12 +146,7 @@ def build(m: dict, cfg: dict, robot: Robot) -> GFCSMethod:
     gfcs_cfg = gfcs_config(m, cfg)
     learned = {}
     if m.get("run"):
-        from fabrax.planners.gfcs.selfsup import load_run
-
-        try:
-            learned = dict(zip(("learner", "selfsup", "encoding"), load_run(m["run"], robot, gfcs_cfg.n_commands)))
-        except FileNotFoundError as e:
-            raise ValueError(str(e)) from None
+        learned = dict(zip(("learner", "selfsup", "encoding"), learned_sampler(Path(m["run"]), robot, gfcs_cfg.n_commands)))
     batch = m.get("batch_size", 1)
     if not isinstance(batch, int) or isinstance(batch, bool) or batch < 1:
         raise ValueError(f"method.batch_size must be a positive integer, got {batch!r}")

@@ -143,17 +143,15 @@ def settings(cfg: dict) -> tuple[SelfSupConfig, Encoding]:
     return ss_cfg, enc
 
 
-def load_run(run_dir: str | Path, robot, n_commands: int) -> tuple[Learner, SelfSupConfig, Encoding]:
-    """The trained sampler of an experiments/gfcs.py run directory (sampler.msgpack and hydra's
-    .hydra/config.yaml), for evaluating it elsewhere (`fabrax bench method=gfcs_learned method.run=DIR`)."""
-    import yaml
-
+def load_run(run_dir: str | Path, run_cfg: dict, robot, n_commands: int) -> tuple[Learner, SelfSupConfig, Encoding]:
+    """The trained sampler of an experiments/gfcs.py run directory (its sampler.msgpack) with the
+    run's resolved config `run_cfg` (the caller reads hydra's .hydra/config.yaml), for evaluating
+    it elsewhere (`fabrax bench method=gfcs_learned method.run=DIR`)."""
     run_dir = Path(run_dir)
-    cfg_file, ckpt = run_dir / ".hydra" / "config.yaml", run_dir / "sampler.msgpack"
-    for f in (cfg_file, ckpt):
-        if not f.exists():
-            raise FileNotFoundError(f"{run_dir}: not an experiments/gfcs.py run directory (no {f.relative_to(run_dir)})")
-    ss_cfg, enc = settings(yaml.safe_load(cfg_file.read_text()))
+    ckpt = run_dir / "sampler.msgpack"
+    if not ckpt.exists():
+        raise FileNotFoundError(f"{run_dir}: not an experiments/gfcs.py run directory (no sampler.msgpack)")
+    ss_cfg, enc = settings(run_cfg)
     learner = load(ckpt, 3 * robot.dof + (ss_cfg.latent or enc.n_reference), n_commands * robot.dof, ss_cfg)
     if not learner.trained:
         raise ValueError(f"{ckpt}: the sampler was never trained")
