@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 
 import fabrax  # noqa: F401  (XLA flags before jax)
+from fabrax import config
 from fabrax.check.clearance import state_clearances
 from fabrax.rl import make_env
 from fabrax.rl.scripted import episode
@@ -42,7 +43,9 @@ def timed(fn, *args, repeats: int):
 def generated_env(backend: str = "kinematic", substeps: int = 30, scenes: int = 8):
     """The bench's env: a pool of `scenes` generated scenes of each kind (no data needed)."""
     pool = {"cuboid_forest": scenes, "shelves": scenes, "flying_cuboids": scenes}
-    return make_env({"backend": backend, "substeps": substeps, "scenes": {"generated": pool}})
+    return make_env(
+        {"backend": backend, "substeps": substeps, "scenes": {"generated": pool}}, config.load("robot", "panda"), config.load("fabric", "panda")
+    )
 
 
 def step_rate(env, b: int, steps: int = 4, repeats: int = 2) -> dict:

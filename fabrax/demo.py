@@ -28,12 +28,16 @@ def main(argv: list[str] | None = None) -> int:
     import jax
 
     from fabrax import config
-    from fabrax.problems import batch
     from fabrax.check.checker import check_path
+    from fabrax.problems import batch
     from fabrax.problems.generators import demo_problem
     from fabrax.rollout import reach
 
-    print(f"[demo] building {args.robot} and its fabric, then compiling the rollout (about 10 s on a laptop CPU; cached for the next run)...", file=sys.stderr, flush=True)
+    print(
+        f"[demo] building {args.robot} and its fabric, then compiling the rollout (about 10 s on a laptop CPU; cached for the next run)...",
+        file=sys.stderr,
+        flush=True,
+    )
     t0 = time.perf_counter()
     robot = config.load_robot(args.robot)
     fabric, params = config.load_fabric(robot, args.fabric)

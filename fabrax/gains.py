@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from fabrax.settings import check_keys
+
 
 def check_value(term: str, key: str, value, scalar: bool = True) -> None:
     """A term parameter is a finite number >= 0 (gains, masses, lengths, weights) or, where the term
@@ -37,9 +39,7 @@ def check_config(cfg: dict[str, Any]) -> None:
     or anything compiled): every term parameter a finite number >= 0 (vectors finite), tolerances
     finite and positive, a known energization."""
     known = {"terms", "goal_tolerance", "goal_frame", "energization", "default_posture_weight"}
-    unknown = set(cfg) - known
-    if unknown:
-        raise ValueError(f"unknown fabric config keys {sorted(unknown)} (known: {sorted(known)})")
+    check_keys(cfg, known, "fabric config")
     for name, spec in (cfg.get("terms") or {}).items():
         if not isinstance(spec, dict):
             raise ValueError(f"fabric.terms.{name} must be a mapping of the term's parameters, got {spec!r}")

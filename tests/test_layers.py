@@ -79,3 +79,11 @@ def test_the_library_never_reads_yaml():
     library = ("fabrax.fabrics", "fabrax.robot", "fabrax.scene", "fabrax.rollout", "fabrax.check", "fabrax.problems", *PILLARS)
     bad = [b for package in library for b in _bad(package, parsers, allowed=("problems/mbm.py",))]
     assert not bad, "; ".join(bad)
+
+
+def test_the_library_takes_objects_not_preset_names():
+    """Presets are resolved above the library: the floors and the pillars never import
+    `fabrax.config` (the preset reader); they take robots, fabrics and settings objects or mappings."""
+    library = ("fabrax.fabrics", "fabrax.robot", "fabrax.scene", "fabrax.rollout", "fabrax.check", "fabrax.problems", *PILLARS)
+    bad = [b for package in library for b in _bad(package, ("fabrax.config",))]
+    assert not bad, "; ".join(bad)

@@ -57,7 +57,7 @@ def test_bad_scene_and_config_keys(panda):
         make_problem(panda, READY, {"obstacles": [{"type": "cuboid", "center": [2, 2, 2], "size": [-1, 1, 1]}]}, goal_q=READY)
     cfg = config.load("fabric", "panda")
     cfg["terms"]["goal"]["k_forcee"] = 1.0
-    with pytest.raises(ValueError, match="unknown parameters.*k_forcee"):
+    with pytest.raises(ValueError, match="unknown fabric term 'goal' parameter keys.*k_forcee"):
         build_arm_fabric(panda, cfg)
     with pytest.raises(ValueError, match="unknown fabric config keys"):
         build_arm_fabric(panda, {"terms": {}, "gains": 1})
@@ -88,3 +88,28 @@ def test_demo_reaches_without_collision(tmp_path, panda):
     data = np.load(out)
     assert data["q"].shape[1] == 7 and np.allclose(data["q"][0], READY, atol=1e-6)
     assert np.linalg.norm(data["q"][-1] - problem.goal_q) <= 0.05
+
+
+def test_problem_batch_gives_every_problem_a_goal_pose(panda):
+    """`batch` stacks problems into one typed `ProblemBatch`; `with_goal_poses` keeps a pose goal as
+    given and gives a joint goal the pose of the goal frame at that configuration (forward kinematics)."""
+    import jax.numpy as jnp
+
+    from fabrax.problems import ProblemBatch, batch
+    from fabrax.robot.kinematics import frame_pose
+
+    goal_q = np.asarray([0.3, -0.5, 0.2, -2.0, 0.1, 1.8, 0.5])
+    pose = (np.asarray([0.45, 0.1, 0.4]), np.asarray([0.0, 1.0, 0.0, 0.0]))
+    empty = {"obstacles": []}
+    joint = make_problem(panda, scene=empty, start_q=READY, goal_q=goal_q, name="joint")
+    posed = make_problem(panda, scene=empty, start_q=READY, goal_pose=pose, name="pose")
+    b = batch([joint, posed])
+    assert isinstance(b, ProblemBatch) and len(b) == 2
+    assert b.joint_goal.tolist() == [True, False] and b.has_pose.tolist() == [False, True]
+    full = b.with_goal_poses(panda, "panda_hand")
+    want = frame_pose(panda, jnp.asarray(goal_q, jnp.float32), "panda_hand")
+    np.testing.assert_allclose(full.goal_pos[0], want.translation(), atol=1e-5)
+    np.testing.assert_allclose(abs(float(jnp.dot(full.goal_quat[0], want.rotation().wxyz))), 1.0, atol=1e-5)
+    np.testing.assert_allclose(full.goal_pos[1], pose[0], atol=1e-6)
+    np.testing.assert_allclose(full.goal_quat[1], pose[1], atol=1e-6)
+    assert bool(full.has_pose.all())

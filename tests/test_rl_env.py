@@ -6,8 +6,9 @@ import jaxlie
 import numpy as np
 import pytest
 
-from fabrax.config import load_robot
+from fabrax import config
 from fabrax.check.clearance import state_clearances
+from fabrax.config import load_robot
 from fabrax.rl import build_pool, env_config, make_env, sample_episode
 from fabrax.rl.observations import cell_centres, cell_index, grid_points, intrinsic_reward, keypoint_distance
 from fabrax.robot.kinematics import frame_pose, keypoints, keypoints_at_pose
@@ -18,7 +19,7 @@ CFG = {"substeps": 5, "scenes": {"generated": {"cuboid_forest": 1, "shelves": 1,
 
 @pytest.fixture(scope="module")
 def env():
-    return make_env(CFG)
+    return make_env(CFG, load_robot("panda"), config.load("fabric", "panda"))
 
 
 @pytest.fixture(scope="module")
@@ -104,7 +105,7 @@ def test_dynamic_basis_points_agree_with_the_checker(env, fns):
     s = reset(jax.random.PRNGKey(5))
     ep = s.pipeline_state
     env_clear, _, _ = state_clearances(env.robot, ep.scene, ep.q[None])
-    np.testing.assert_allclose(np.min(s.obs["dynamic_bps"] - env.robot.sphere_radius), env_clear[0], atol=1e-5)
+    np.testing.assert_allclose(np.min(s.obs["dynamic_bps"] - env.robot.collision.radius), env_clear[0], atol=1e-5)
 
 
 def test_keypoints_of_a_pose_and_the_distance():

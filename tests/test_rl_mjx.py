@@ -8,6 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from fabrax import config
 from fabrax.check.clearance import state_clearances
 from fabrax.rl import make_env
 from fabrax.robot.kinematics import sphere_centers
@@ -18,7 +19,8 @@ CFG = {"substeps": 5, "scenes": {"generated": {"cuboid_forest": 1, "shelves": 1,
 
 @pytest.fixture(scope="module")
 def envs():
-    kin, mj = make_env(CFG), make_env({**CFG, "backend": "mjx"})
+    arm = config.load("robot", "panda"), config.load("fabric", "panda")
+    kin, mj = make_env(CFG, *arm), make_env({**CFG, "backend": "mjx"}, *arm)
     return {name: (env, jax.jit(env.reset), jax.jit(env.step)) for name, env in (("kinematic", kin), ("mjx", mj))}
 
 

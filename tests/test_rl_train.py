@@ -12,9 +12,13 @@ import jax
 import numpy as np
 import pytest
 
+from fabrax import config
 from fabrax.rl.train import normalise, train
 
+PANDA = {"robot": config.load("robot", "panda"), "fabric": config.load("fabric", "panda")}
+
 TINY = {  # configs/rl/tiny.yaml's values: seconds of training
+    **PANDA,
     "env": {
         "substeps": 4,
         "episode_s": 2.0,
@@ -70,7 +74,7 @@ def run(tmp_path_factory):
 
     ppo = brax_ppo()
     run_dir = tmp_path_factory.mktemp("rl") / "run"
-    env = make_env(TINY["env"])
+    env = make_env(TINY["env"], **PANDA)
     factory = lambda *a, **k: make_guide_networks(*a, **k, variant="mlp", hidden=(32, 32))  # noqa: E731
     # brax's own initialisation with the same seed and networks: the parameters before any update
     _, init, _ = ppo.train(
@@ -179,7 +183,7 @@ def test_resampling_reset_and_episode_sums():
     from fabrax.rl.env import make_env
     from fabrax.rl.wrappers import wrap_for_training
 
-    env = make_env({**TINY["env"], "episode_s": 0.4})  # 6 policy steps per episode
+    env = make_env({**TINY["env"], "episode_s": 0.4}, **PANDA)  # 6 policy steps per episode
     wrapped = wrap_for_training(env, env.cfg.episode_steps, cells=1.0)
     state = jax.jit(wrapped.reset)(jax.random.split(jax.random.PRNGKey(0), 4))
     assert np.all(np.asarray(state.info["stage"]) == 1)

@@ -58,7 +58,8 @@ def check(cfg: dict) -> None:
         if list(joints or []) != list(MBM_JOINTS):
             name = choice if isinstance(choice, str) else choice.get("name")
             raise SystemExit(
-                f"fabrax bench: problems=mbm are MotionBenchMaker's Panda problems; robot={name} cannot run them: use problems=mbm_like, mpinets_like or mpinets"
+                f"fabrax bench: problems=mbm are MotionBenchMaker's Panda problems; robot={name} cannot run them: "
+                "use problems=mbm_like, mpinets_like or mpinets"
             )
     if cfg["split"] not in ("train", "test", "all"):
         raise SystemExit(f"fabrax bench: split must be train, test or all, got {cfg['split']!r}")

@@ -25,6 +25,7 @@ from fabrax.gains import check_config
 from fabrax.robot.goal import TOLERANCE, orientation_error
 from fabrax.robot.kinematics import frame_pose
 from fabrax.robot.robot import Robot
+from fabrax.settings import check_keys
 
 AIMS = ("joint", "pose")
 AIM_TERMS = ("goal", "posture", "ee")  # the terms that `with_*goal` set
@@ -162,9 +163,7 @@ def build_arm_fabric(robot: Robot, cfg: dict[str, Any], posture=None) -> ArmFabr
                 spec["target"] = np.asarray(posture, np.float32)
         terms.append(TERMS[kind](name=name, **spec))
     tol = dict(cfg.get("goal_tolerance") or {})
-    unknown = set(tol) - {"joint", "position", "orientation_deg"}
-    if unknown:
-        raise ValueError(f"unknown goal_tolerance keys {sorted(unknown)}")
+    check_keys(tol, ("joint", "position", "orientation_deg"), "goal_tolerance")
     fabric = ArmFabric(
         robot=robot,
         terms=tuple(terms),

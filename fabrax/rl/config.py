@@ -10,6 +10,7 @@ import dataclasses
 from typing import Any
 
 from fabrax.robot.goal import TOLERANCE
+from fabrax.settings import check_keys
 
 BACKENDS = ("kinematic", "mjx")
 THESIS_BOUNDS = ((-0.75, -1.0, -0.1), (1.5, 1.0, 1.25))  # thesis eq. 3.15: the BPS grid's corners (m)
@@ -65,13 +66,6 @@ class EnvConfig:
         return max(1, int(round(self.episode_s / self.policy_dt)))
 
 
-def _check_keys(cfg: dict, cls, where: str) -> None:
-    known = {f.name for f in dataclasses.fields(cls)}
-    unknown = set(cfg) - known
-    if unknown:
-        raise ValueError(f"unknown {where} keys {sorted(unknown)} (known: {', '.join(sorted(known))})")
-
-
 def _positive(name: str, value, integer: bool = False):
     ok = isinstance(value, int) and not isinstance(value, bool) if integer else isinstance(value, (int, float)) and not isinstance(value, bool)
     if not ok or value <= 0:
@@ -96,7 +90,7 @@ def _count(name: str, n):
 
 def scenes_config(cfg: dict[str, Any] | None) -> ScenesConfig:
     cfg = dict(cfg or {})
-    _check_keys(cfg, ScenesConfig, "rl env.scenes")
+    check_keys(cfg, [f.name for f in dataclasses.fields(ScenesConfig)], "rl env.scenes")
     out = {}
     if "mbm_classes" in cfg:
         out["mbm_classes"] = tuple(cfg["mbm_classes"] or ())
@@ -139,7 +133,7 @@ def scenes_config(cfg: dict[str, Any] | None) -> ScenesConfig:
 def env_config(cfg: dict[str, Any] | None = None) -> EnvConfig:
     """An `EnvConfig` from a mapping; every value is checked here, before any jit."""
     cfg = dict(cfg or {})
-    _check_keys(cfg, EnvConfig, "rl env")
+    check_keys(cfg, [f.name for f in dataclasses.fields(EnvConfig)], "rl env")
     out: dict[str, Any] = {}
     for key in ("backend", "integrator"):
         if key in cfg:

@@ -34,14 +34,14 @@ import jaxlie
 from brax.envs.base import Env, State
 from flax import struct
 
-from fabrax.config import load_fabric, load_robot
-from fabrax.fabrics import ArmFabric, Params
 from fabrax.check.clearance import state_clearances
+from fabrax.fabrics import ArmFabric, Params, build_arm_fabric
 from fabrax.problems.mbm import load_mbm
 from fabrax.problems.procedural import MPINETS_LIKE, generate
 from fabrax.rl.config import EnvConfig, env_config
 from fabrax.rl.observations import bps_vectors, cell_centres, cell_index, grid_points, intrinsic_reward, keypoint_distance, point_distances
 from fabrax.rl.scenes import ScenePool, build_pool, sample_episode
+from fabrax.robot import Robot, build_robot
 from fabrax.robot.kinematics import frame_pose, keypoints, points, sphere_centers
 from fabrax.rollout.rollout import integrate
 from fabrax.scene import COMMON_CAPACITY, Scene
@@ -252,16 +252,21 @@ class FabricGuideEnv(Env):
         }
 
 
-def make_env(cfg: EnvConfig | dict | None = None, robot: str | dict = "panda", fabric: str | dict = "panda", data_dir=None) -> FabricGuideEnv:
-    """The environment from configs: robot and fabric by config name (configs/robot, configs/fabric),
-    `cfg` an `EnvConfig` or its mapping. MBM train problems (1-50) of `cfg.scenes.mbm_classes` are
-    read from `data_dir` (default $FABRAX_DATA); procedural problems of `cfg.scenes.procedural` and
-    the `cfg.scenes.mpinets` MπNets-faithful problems (their own starts and goal configurations,
-    cached under $FABRAX_CACHE/problems) are generated with `procedural_seed` (10000: the benchmark's
+def make_env(cfg: EnvConfig | dict | None, robot: Robot | dict, fabric: dict, data_dir=None) -> FabricGuideEnv:
+    """The environment: `cfg` an `EnvConfig` or its mapping, `robot` a `Robot` or a robot config
+    mapping, `fabric` a fabric config mapping (`fabrax.config.load("fabric", "panda")` reads the
+    shipped preset). MBM train problems (1-50) of `cfg.scenes.mbm_classes` are read from `data_dir`
+    (default $FABRAX_DATA); procedural problems of `cfg.scenes.procedural` and the
+    `cfg.scenes.mpinets` MπNets-faithful problems (their own starts and goal configurations, cached
+    under $FABRAX_CACHE/problems) are generated with `procedural_seed` (10000: the benchmark's
     train split)."""
     cfg = cfg if isinstance(cfg, EnvConfig) else env_config(cfg)
-    rob = load_robot(robot)
-    arm, params = load_fabric(rob, fabric)
+    if isinstance(robot, str) or isinstance(fabric, str):
+        name = robot if isinstance(robot, str) else fabric
+        raise ValueError(f"make_env takes a robot and a fabric config, not the name '{name}': read a preset with fabrax.config.load")
+    rob = robot if isinstance(robot, Robot) else build_robot(robot)
+    arm = build_arm_fabric(rob, fabric)
+    params = arm.init()
     problems = load_mbm(rob, data_dir, cfg.scenes.mbm_classes, split="train", limit=cfg.scenes.mbm_limit) if cfg.scenes.mbm_classes else []
     for cls, n in cfg.scenes.procedural:
         family = "mpinets_like" if cls in MPINETS_LIKE else "mbm_like"

@@ -2,7 +2,8 @@
 
 `settings` is a mapping (configs/rl.yaml through experiments/rl.py, or a dict):
 
-    robot, fabric          config names (configs/robot, configs/fabric)
+    robot, fabric          robot and fabric config mappings (`fabrax.config.load("robot", "panda")`; the
+                           experiment script composes them from configs/robot and configs/fabric)
     env                    `EnvConfig` fields of the training scenes (fabrax/rl/config.py)
     eval_scenes            `env.scenes` overrides of the held-out scenes of the learning curves
     network                variant (conv | mlp), hidden (the MLP widths of Table 3.4)
@@ -31,13 +32,14 @@ from typing import Any
 
 import jax
 
-from fabrax.config import load
 from fabrax.rl.config import env_config
 from fabrax.rl.env import make_env
 from fabrax.rl.networks import make_guide_networks, ppo_observation
 from fabrax.rl.wrappers import FixedStage, wrap_for_training
+from fabrax.settings import check_keys, from_mapping
 
 log = logging.getLogger("fabrax.rl")
+SECTIONS = ("robot", "fabric", "env", "eval_scenes", "network", "curriculum", "ppo")
 CURVES = ("success", "collision", "keypoint_distance", "unique_cells", "r_sparse", "r_intrinsic", "stage_per_step")
 
 
@@ -63,29 +65,16 @@ class PPOConfig:
 
 
 def ppo_config(cfg: dict | None) -> PPOConfig:
-    cfg = dict(cfg or {})
-    known = {f.name: f for f in dataclasses.fields(PPOConfig)}
-    unknown = sorted(set(cfg) - set(known))
-    if unknown:
-        raise ValueError(f"unknown ppo keys {unknown} (known: {', '.join(known)})")
-    out = {}
-    for k, v in cfg.items():
-        default = getattr(PPOConfig, k)
-        if k == "max_grad_norm" and v is None:
-            out[k] = None
-        elif isinstance(default, bool):
-            if not isinstance(v, bool):
-                raise ValueError(f"ppo.{k} must be true or false, got {v!r}")
-            out[k] = v
-        elif isinstance(default, int):
-            if not isinstance(v, int) or isinstance(v, bool) or v < (0 if k == "seed" else 1):
-                raise ValueError(f"ppo.{k} must be a positive integer, got {v!r}")
-            out[k] = v
-        else:
-            if not isinstance(v, (int, float)) or isinstance(v, bool) or v < 0:
-                raise ValueError(f"ppo.{k} must be a non-negative number, got {v!r}")
-            out[k] = float(v)
-    p = PPOConfig(**out)
+    """A `PPOConfig` from a mapping (the `ppo` section), its ranges and batch shapes checked."""
+    p = from_mapping(PPOConfig, cfg, "ppo")
+    for f in dataclasses.fields(PPOConfig):
+        v = getattr(p, f.name)
+        if isinstance(v, bool) or v is None:
+            continue
+        if isinstance(v, int) and v < (0 if f.name == "seed" else 1):
+            raise ValueError(f"ppo.{f.name} must be a positive integer, got {v!r}")
+        if isinstance(v, float) and v < 0:
+            raise ValueError(f"ppo.{f.name} must be a non-negative number, got {v!r}")
     if p.batch_size * p.num_minibatches % p.num_envs:
         raise ValueError(
             f"ppo.batch_size x ppo.num_minibatches ({p.batch_size * p.num_minibatches}) must be a multiple of ppo.num_envs ({p.num_envs})"
@@ -98,28 +87,27 @@ def ppo_config(cfg: dict | None) -> PPOConfig:
 def normalise(settings: dict[str, Any]) -> dict[str, Any]:
     """The settings with every section checked and defaults filled (what `settings.json` records)."""
     s = dict(settings)
-    unknown = sorted(set(s) - {"robot", "fabric", "env", "eval_scenes", "network", "curriculum", "ppo"})
-    if unknown:
-        raise ValueError(f"unknown rl settings {unknown} (known: robot, fabric, env, eval_scenes, network, curriculum, ppo)")
+    check_keys(s, SECTIONS, "rl settings")
     env = _plain(dataclasses.asdict(env_config(s.get("env"))))  # every field, validated
     env_config(eval_settings(env, s.get("eval_scenes")))
     net = {"variant": "conv", "hidden": [512, 256, 128], **dict(s.get("network") or {})}
-    if set(net) - {"variant", "hidden"}:
-        raise ValueError(f"unknown rl network keys {sorted(set(net) - {'variant', 'hidden'})} (known: variant, hidden)")
+    check_keys(net, ("variant", "hidden"), "rl network")
     if net["variant"] not in ("conv", "mlp"):
         raise ValueError(f"network.variant must be 'conv' or 'mlp', got {net['variant']!r}")
     net["hidden"] = [int(h) for h in net["hidden"]]
     cur = {"cells": 0.0, "max_steps": None, **dict(s.get("curriculum") or {})}
-    if set(cur) != {"cells", "max_steps"}:
-        raise ValueError(f"unknown rl curriculum keys {sorted(set(cur) - {'cells', 'max_steps'})} (known: cells, max_steps)")
+    check_keys(cur, ("cells", "max_steps"), "rl curriculum")
     cur["cells"] = float(cur["cells"])
     if cur["max_steps"] is not None:
         cur["max_steps"] = int(cur["max_steps"])
     ppo = dataclasses.asdict(ppo_config(s.get("ppo")))
-    robot, fabric = (s.get(k, "panda") for k in ("robot", "fabric"))
+    for key in ("robot", "fabric"):
+        if not isinstance(s.get(key), dict):
+            got = "nothing" if s.get(key) is None else repr(s[key])
+            raise ValueError(f"rl settings.{key} must be a {key} config mapping, got {got}: read a preset with fabrax.config.load('{key}', NAME)")
     return {
-        "robot": load("robot", robot) if isinstance(robot, str) else robot,  # config names become their contents
-        "fabric": load("fabric", fabric) if isinstance(fabric, str) else fabric,
+        "robot": dict(s["robot"]),
+        "fabric": dict(s["fabric"]),
         "env": env,
         "eval_scenes": dict(s.get("eval_scenes") or {}),
         "network": net,

@@ -20,10 +20,12 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx
 
-from fabrax import config
 from fabrax.check.checker import check_path
+from fabrax.fabrics import build_arm_fabric
+from fabrax.robot import build_robot
 from fabrax.robot.kinematics import frame_path
 from fabrax.scene.primitives import empty, from_dict
+from fabrax.settings import from_mapping
 from fabrax.skills import demos, execute, geodesic, metric, spline, vae
 from fabrax.skills.rbf import kmeans
 
@@ -72,13 +74,19 @@ def nearest(points: np.ndarray, reference: np.ndarray) -> np.ndarray:
 
 
 def run(cfg: dict, out: Path) -> dict:
+    """The experiment of a composed configs/skills.yaml (`robot` and `fabric` as config mappings,
+    as experiments/skills.py composes them); writes results.json and its figures under `out`."""
+    for key in ("robot", "fabric"):
+        if not isinstance(cfg.get(key), dict):
+            raise ValueError(f"skills config: {key} must be a {key} config mapping, got {cfg.get(key)!r}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    robot = config.load_robot(cfg["robot"])
-    fabric, params = config.load_fabric(robot, cfg["fabric"])
+    robot = build_robot(cfg["robot"])  # the composed robot and fabric configs (experiments/skills.py)
+    fabric = build_arm_fabric(robot, cfg["fabric"])
+    params = fabric.init()
     t_start = time.perf_counter()
     d = load_demos(cfg, robot)
-    vcfg = vae.VAEConfig(**cfg["vae"], seed=cfg["seed"])
+    vcfg = from_mapping(vae.VAEConfig, {**cfg["vae"], "seed": cfg["seed"]}, "vae")
     t0 = time.perf_counter()
     if d.theta is None:
         model, log = vae.fit_task(d.x.reshape(-1, 3), d.q.reshape(-1, 4), vcfg)
@@ -92,7 +100,7 @@ def run(cfg: dict, out: Path) -> dict:
     fk = jax.jit(jax.vmap(vae.fk_points(robot, cfg["frame"], 0.1)))
     seed_q = jnp.asarray(cfg["ik_seeds"][0], jnp.float32)
     graphdef, state = nnx.split(model)
-    gcfg = geodesic.GeodesicConfig(**cfg["geodesic"])
+    gcfg = from_mapping(geodesic.GeodesicConfig, cfg["geodesic"], "geodesic")
     nodes = kmeans(codes.reshape(-1, codes.shape[-1]), cfg["graph_nodes"], cfg["seed"])[0] if cfg["graph_nodes"] else None
     curve_metric = metric.curve_metric(graphdef)
     solve = geodesic.solver(curve_metric, gcfg, nodes)
@@ -161,7 +169,7 @@ def run(cfg: dict, out: Path) -> dict:
     z_obs = densify(geo_obs.coeffs)
     scene = from_dict({"obstacles": [{"type": "sphere", "center": center.tolist(), "radius": oc["radius"]}]})
     free = empty(spheres=1)  # same shapes as `scene`: one compiled follower serves both
-    follow = execute.follower(fabric, params, execute.FollowConfig(**cfg["follow"]))
+    follow = execute.follower(fabric, params, from_mapping(execute.FollowConfig, cfg["follow"], "follow"))
     c_obs, r_obs = jnp.asarray(center[None], jnp.float32), jnp.asarray([oc["radius"]], jnp.float32)
     obstacle = {
         "center": center.tolist(),

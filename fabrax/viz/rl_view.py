@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from fabrax import config
 from fabrax.rl import make_env
 from fabrax.rl.observations import grid_points
 from fabrax.rl.scripted import POLICIES, episode
@@ -42,13 +43,12 @@ def rl_view(viewer: Viewer, fabric_name: str = "panda", policy: str = "random", 
     elif policy not in POLICIES:
         raise ValueError(f"policy must be one of {POLICIES}, got '{policy}'")
     server = viewer.server
-    loading = server.gui.add_markdown(
-        "**Rolling out one episode** (the first call compiles the environment, about 20 s on a laptop CPU)..."
-    )
+    loading = server.gui.add_markdown("**Rolling out one episode** (the first call compiles the environment, about 20 s on a laptop CPU)...")
     viewer.nodes.append(loading)
     print("[view] rolling out one episode (the first call compiles the environment, about 20 s on a laptop CPU)...", flush=True)
     cfg = env_cfg or {"scenes": {"generated": {"cuboid_forest": 1, "shelves": 1, "flying_cuboids": 1}, "configs_per_scene": 4}}
-    env = make_env(cfg, robot=viewer.robot_name, fabric=fabric)
+    fabric = config.load("fabric", fabric) if isinstance(fabric, str) else fabric
+    env = make_env(cfg, viewer.robot, fabric)
     start, (qs, targets, counts, metrics, alive) = jax.jit(lambda k: episode(env, policy, k, act))(jax.random.PRNGKey(seed))
     ep = start.pipeline_state
     steps = int(np.asarray(alive).sum())

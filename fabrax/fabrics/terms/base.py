@@ -19,6 +19,7 @@ from fabrax.gains import check_value
 from fabrax.robot.kinematics import PointKinematics
 from fabrax.robot.robot import Robot
 from fabrax.scene import FAR, Scene
+from fabrax.settings import check_keys
 
 
 @struct.dataclass
@@ -62,9 +63,7 @@ class Term(NamedTuple):
 
 
 def _params(defaults: dict[str, Any], overrides: dict[str, Any], name: str) -> Callable[[], dict[str, Any]]:
-    unknown = set(overrides) - set(defaults)
-    if unknown:
-        raise ValueError(f"fabric term '{name}': unknown parameters {sorted(unknown)} (known: {sorted(defaults)})")
+    check_keys(overrides, defaults, f"fabric term '{name}' parameter")
     for key, value in overrides.items():
         check_value(name, key, value, scalar=np.ndim(defaults[key]) == 0)
     merged = {**defaults, **overrides}
@@ -81,12 +80,12 @@ def _spheres(robot: Robot):
     runs a remainder as scalar code, which the padding avoids."""
     extra = -robot.n_spheres % SPHERE_LANES if robot.n_spheres else 0
     pad = lambda a: jnp.concatenate([a, jnp.broadcast_to(a[:1], (extra,) + a.shape[1:])])  # noqa: E731
-    return "spheres", pad(robot.sphere_frame), pad(robot.sphere_local)
+    return "spheres", pad(robot.collision.frame), pad(robot.collision.local)
 
 
 def _sphere_gaps(robot: Robot, d: jax.Array, margin: jax.Array) -> jax.Array:
     """d - r - margin for distances d (..., N) of the padded sphere set (`_spheres`); FAR for the
     padding, beyond every term's reach, so that its metric, forces and energies are exactly 0."""
     n = robot.n_spheres
-    radius = jnp.concatenate([robot.sphere_radius, jnp.zeros(d.shape[-1] - n, d.dtype)])
+    radius = jnp.concatenate([robot.collision.radius, jnp.zeros(d.shape[-1] - n, d.dtype)])
     return jnp.where(jnp.arange(d.shape[-1]) < n, d - radius - margin, FAR)
