@@ -138,7 +138,7 @@ def main() -> None:
         )
         print(json.dumps(rows[-1]))
 
-    meta = {"calls": args.calls, "fabrax_spheres": robot.n_spheres, "fabrax_self_pairs": int(robot.pair_i.shape[0]), "jax": jax.__version__}
+    meta = {"calls": args.calls, "fabrax_spheres": robot.n_spheres, "fabrax_self_pairs": int(robot.collision.pair_i.shape[0]), "jax": jax.__version__}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "results.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))

@@ -19,10 +19,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import fabrax  # noqa: F401  (XLA flags before jax)
-from fabrax.config import load_robot
-from fabrax.problems import procedural
 from fabrax.check.clearance import state_clearances
 from fabrax.check.native import NativeChecker
+from fabrax.config import load_robot
+from fabrax.problems import procedural
 from fabrax.scene import COMMON_CAPACITY
 from fabrax.scene.sdf import primitive_mask
 

@@ -124,7 +124,7 @@ def main() -> None:
 
     meta = {
         "spheres": robot.n_spheres,
-        "self_pairs": int(robot.pair_i.shape[0]),
+        "self_pairs": int(robot.collision.pair_i.shape[0]),
         "primitives": scene.n_primitives,
         "steps_per_call": args.steps,
         "dt": dt,

@@ -61,8 +61,8 @@ def test_checker_matches_brute_force(panda):
     lo, hi = np.asarray(panda.lower), np.asarray(panda.upper)
     qs = rng.uniform(lo, hi, (64, panda.dof))
     env, slf, lim = (np.asarray(a) for a in state_clearances(panda, scene, jnp.asarray(qs, jnp.float32)))
-    radius = np.asarray(panda.sphere_radius)
-    pi, pj = np.asarray(panda.pair_i), np.asarray(panda.pair_j)
+    radius = np.asarray(panda.collision.radius)
+    pi, pj = np.asarray(panda.collision.pair_i), np.asarray(panda.collision.pair_j)
     for k, q in enumerate(qs):
         x = np.asarray(sphere_centers(panda, jnp.asarray(q, jnp.float32)), float)
         brute_env = min(_brute_distance(o, xi) - r for xi, r in zip(x, radius) for o in obstacles)
@@ -82,7 +82,7 @@ def test_interpolation_catches_a_corner_clip(panda):
     qa[0], qb[0] = -0.9, 0.9
     x = np.asarray(sphere_centers(panda, jnp.asarray(READY, jnp.float32)), float)
     s = int(np.argmax(np.hypot(x[:, 0], x[:, 1])))  # the sphere farthest from the base axis
-    r = float(panda.sphere_radius[s])
+    r = float(panda.collision.radius[s])
     half = 0.025
     outward = np.array([x[s, 0], x[s, 1], 0.0]) / np.hypot(x[s, 0], x[s, 1])
     corner_dir = -outward  # the cube sits outside the arm, its (1,1,1) corner rotated to point at the axis
@@ -168,7 +168,7 @@ def test_mbm_split_and_flags(shared_data):
     assert [p.name for p in train] == ["box/0001", "box/0002"]
     assert all(p.valid for p in test + train)
     # a robot whose spheres are far too large flags (never drops) every problem, with a reason
-    fat = robot.replace(sphere_radius=robot.sphere_radius + 0.5)
+    fat = robot.replace(collision=robot.collision.replace(radius=robot.collision.radius + 0.5))
     flagged = load_mbm(fat, shared_data, ["box"], "test", limit=2)
     assert len(flagged) == 2 and not any(p.valid for p in flagged)
     assert all("collision" in p.reason for p in flagged)

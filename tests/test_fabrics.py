@@ -191,8 +191,8 @@ def test_no_nan_at_singular_states(fabric):
     p = fab.with_joint_goal(params, goal)
     pose = fab.with_pose_goal(params, jnp.asarray([0.4, 0.1, 0.5]), jnp.asarray([0.0, 1.0, 0.0, 0.0]))
     # an obstacle whose face is 1 mm from the surface of one collision sphere at READY
-    x = point_kinematics(robot, jnp.asarray(READY), jnp.zeros(7), robot.sphere_frame, robot.sphere_local).x
-    c, r = x[:, 30], robot.sphere_radius[30]
+    x = point_kinematics(robot, jnp.asarray(READY), jnp.zeros(7), robot.collision.frame, robot.collision.local).x
+    c, r = x[:, 30], robot.collision.radius[30]
     near = sc.from_dict(
         {"obstacles": [{"type": "cuboid", "center": [float(c[0]) + float(r) + 0.001 + 0.05, float(c[1]), float(c[2])], "size": [0.1, 0.1, 0.1]}]}
     )
@@ -223,7 +223,7 @@ def test_resolutions_agree_where_they_coincide(fabric, panda):
     fab, params = fabric
     scene = sc.from_dict(BAR)
     q, qd = jnp.asarray(READY), jnp.asarray(V0, jnp.float32)
-    kin = point_kinematics(panda, q, qd, panda.sphere_frame, panda.sphere_local)
+    kin = point_kinematics(panda, q, qd, panda.collision.frame, panda.collision.local)
     inputs = TermInputs(q, qd, kin, scene, panda)
     a = obstacle_repulsion(resolution="scene")
     b = obstacle_repulsion(resolution="primitive")
@@ -233,13 +233,13 @@ def test_resolutions_agree_where_they_coincide(fabric, panda):
         assert jnp.allclose(getattr(ca, f), getattr(cb, f), rtol=1e-4, atol=1e-5), f
     # link resolution = the sphere resolution over each link pair's closest sphere pair
     x = np.asarray(kin.x)
-    i, j = np.asarray(panda.pair_i), np.asarray(panda.pair_j)
-    r = np.asarray(panda.sphere_radius)
+    i, j = np.asarray(panda.collision.pair_i), np.asarray(panda.collision.pair_j)
+    r = np.asarray(panda.collision.radius)
     gap = np.linalg.norm(x[:, i] - x[:, j], axis=0) - r[i] - r[j]
-    link = np.asarray(panda.sphere_link)
+    link = np.asarray(panda.collision.link)
     key = link[i] * 100 + link[j]
     closest = np.asarray([np.nonzero(key == k)[0][np.argmin(gap[key == k])] for k in np.unique(key)])
-    reduced = panda.replace(pair_i=jnp.asarray(i[closest]), pair_j=jnp.asarray(j[closest]))
+    reduced = panda.replace(collision=panda.collision.replace(pair_i=jnp.asarray(i[closest]), pair_j=jnp.asarray(j[closest])))
     s1, s2 = self_collision(resolution="link"), self_collision(resolution="sphere")
     c1 = s1.apply(s1.init(), inputs)
     c2 = s2.apply(s2.init(), TermInputs(q, qd, kin, scene, reduced))
@@ -262,13 +262,16 @@ def test_sphere_padding_changes_nothing(fabric, panda, monkeypatch, resolution):
     n = panda.n_spheres
     assert n % T.SPHERE_LANES  # the padding is exercised
     roll = lambda a: jnp.roll(a, 1, axis=0)  # noqa: E731
+    c = panda.collision
     robot = panda.replace(
-        sphere_frame=roll(panda.sphere_frame),
-        sphere_local=roll(panda.sphere_local),
-        sphere_radius=roll(panda.sphere_radius),
-        sphere_link=roll(panda.sphere_link),
-        pair_i=(panda.pair_i + 1) % n,
-        pair_j=(panda.pair_j + 1) % n,
+        collision=c.replace(
+            frame=roll(c.frame),
+            local=roll(c.local),
+            radius=roll(c.radius),
+            link=roll(c.link),
+            pair_i=(c.pair_i + 1) % n,
+            pair_j=(c.pair_j + 1) % n,
+        )
     )
     terms = tuple(T.obstacle_repulsion(resolution=resolution) if t.name == "obstacles" else t for t in fab.terms)
     fab = dataclasses.replace(fab, robot=robot, terms=terms)
@@ -300,7 +303,7 @@ def test_self_collision_batched_equals_per_arm(panda, resolution, arms_minor):
     qds = jnp.asarray(rng.normal(size=(6, 7)), jnp.float32)
 
     def apply(p, q, qd):
-        kin = point_kinematics(panda, q, qd, panda.sphere_frame, panda.sphere_local)
+        kin = point_kinematics(panda, q, qd, panda.collision.frame, panda.collision.local)
         return term.apply(p, TermInputs(q, qd, kin, None, panda))
 
     p = term.init()

@@ -6,8 +6,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from fabrax.problems import mpinets
 from fabrax.check.clearance import state_clearances
+from fabrax.problems import mpinets
 from fabrax.robot.kinematics import frame_pose
 
 

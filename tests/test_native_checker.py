@@ -4,8 +4,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from fabrax.problems import procedural
 from fabrax.check.clearance import state_clearances
+from fabrax.problems import procedural
 from fabrax.scene import COMMON_CAPACITY, from_dict
 
 pytest.importorskip("numba", reason="numba is not installed (pip install -e '.[bench]')")

@@ -83,7 +83,7 @@ def test_any_urdf_arm(planar):
     robot = planar
     assert robot.dof == 3 and robot.joint_revolute == (True, True, False)
     assert compare_with_mujoco(robot, TWO_LINK, {}) <= 1e-5
-    assert robot.n_spheres <= 8 and set(robot.sphere_link_names) == {"base", "upper", "fore", "slider"}
+    assert robot.n_spheres <= 8 and set(robot.collision.link_names) == {"base", "upper", "fore", "slider"}
 
 
 def test_point_kinematics_against_finite_differences(panda):
@@ -91,7 +91,7 @@ def test_point_kinematics_against_finite_differences(panda):
         rng = np.random.default_rng(1)
         q = jnp.asarray(rng.uniform(panda.lower, panda.upper), jnp.float64)
         qd = jnp.asarray(rng.normal(size=7), jnp.float64)
-        frame, local = panda.sphere_frame, panda.sphere_local.astype(jnp.float64)
+        frame, local = panda.collision.frame, panda.collision.local.astype(jnp.float64)
         kin = point_kinematics(panda, q, qd, frame, local)
         x, xd, jdqd, jac = kin.x.T, kin.xd.T, kin.jdqd.T, kin.jac.transpose(2, 0, 1)  # (N, 3), (N, 3, n)
         f = lambda q_: sphere_centers(panda, q_)  # noqa: E731
@@ -143,19 +143,19 @@ def test_sphere_set_from_file(shared_data):
     cfg["spheres"] = {"source": "file", "file": str(shared_data / "panda_spheres.json"), "set": "curobo"}
     robot = build_robot(cfg)
     assert robot.n_spheres == 61
-    assert robot.pair_i.shape[0] > 0
+    assert robot.collision.pair_i.shape[0] > 0
 
 
 def test_self_collision_pairs(panda):
-    frame = np.asarray(panda.sphere_frame)
-    i, j = np.asarray(panda.pair_i), np.asarray(panda.pair_j)
+    frame = np.asarray(panda.collision.frame)
+    i, j = np.asarray(panda.collision.pair_i), np.asarray(panda.collision.pair_j)
     assert len(i) > 100
     assert np.all(frame[i] != frame[j])
     parents = np.concatenate([[-1], np.asarray(panda.joint_parent) + 1])
     assert not np.any(parents[frame[i]] == frame[j]) and not np.any(parents[frame[j]] == frame[i])
     # the ready posture is free of self-collision under the kept pairs
     x = sphere_centers(panda, jnp.asarray(config.load("robot", "panda")["default_q"], jnp.float32))
-    gap = jnp.linalg.norm(x[i] - x[j], axis=-1) - panda.sphere_radius[i] - panda.sphere_radius[j]
+    gap = jnp.linalg.norm(x[i] - x[j], axis=-1) - panda.collision.radius[i] - panda.collision.radius[j]
     assert float(gap.min()) > 0
 
 
@@ -170,18 +170,18 @@ def test_closest_link_pairs_is_the_brute_force_minimum(robot_name, panda, reques
     if robot_name == "panda_mbm":
         request.getfixturevalue("shared_data")  # skips without the data
     robot = panda if robot_name == "panda" else config.load_robot("panda_mbm")
-    i, j = np.asarray(robot.pair_i), np.asarray(robot.pair_j)
-    link, r = np.asarray(robot.sphere_link), np.asarray(robot.sphere_radius)
+    i, j = np.asarray(robot.collision.pair_i), np.asarray(robot.collision.pair_j)
+    link, r = np.asarray(robot.collision.link), np.asarray(robot.collision.radius)
     key = link[i] * 1000 + link[j]
     groups = [np.nonzero(key == k)[0] for k in np.unique(key)]
     rng = np.random.default_rng(0)
     lo, hi = np.asarray(robot.lower), np.asarray(robot.upper)
     qs = jnp.asarray(rng.uniform(lo, hi, (64, robot.dof)), jnp.float32)
     xs = jax.vmap(lambda q: sphere_centers(robot, q))(qs)  # (B, S, 3)
-    bi, bj = jax.jit(jax.vmap(lambda x: closest_link_pairs(robot, x.T)))(xs)
+    bi, bj = jax.jit(jax.vmap(lambda x: closest_link_pairs(robot.collision, x.T)))(xs)
     assert bi.shape == (64, len(groups))
     # the arms-minor search (the self-collision term's under vmap) picks the very same pairs
-    mi, mj = jax.jit(lambda xt: closest_minor(xt, *search_tables(robot)))(jnp.moveaxis(xs, 0, -1).swapaxes(0, 1))
+    mi, mj = jax.jit(lambda xt: closest_minor(xt, *search_tables(robot.collision)))(jnp.moveaxis(xs, 0, -1).swapaxes(0, 1))
     assert np.array_equal(np.asarray(mi).T, np.asarray(bi)) and np.array_equal(np.asarray(mj).T, np.asarray(bj))
     for x, ci, cj in zip(np.asarray(xs, np.float64), np.asarray(bi), np.asarray(bj)):
         gap = lambda a, b: np.linalg.norm(x[a] - x[b], axis=-1) - r[a] - r[b]  # noqa: E731
@@ -214,8 +214,8 @@ def test_self_collision_rows_are_the_jacobians_difference(panda, planar):
         for robot in (panda, planar):
             rng = np.random.default_rng(4)
             q = jnp.asarray(rng.uniform(robot.lower, robot.upper))
-            kin = point_kinematics(robot, q, jnp.zeros(robot.dof), robot.sphere_frame, robot.sphere_local.astype(jnp.float64))
-            frame = np.asarray(robot.sphere_frame)
+            kin = point_kinematics(robot, q, jnp.zeros(robot.dof), robot.collision.frame, robot.collision.local.astype(jnp.float64))
+            frame = np.asarray(robot.collision.frame)
             i, j = np.triu_indices(len(frame), 1)
             i, j = i[frame[i] != frame[j]], j[frame[i] != frame[j]]
             rel = kin.x[:, i] - kin.x[:, j]
@@ -236,7 +236,7 @@ def test_point_kinematics_matches_forward_autodiff(panda, planar):
             rng = np.random.default_rng(3)
             q = jnp.asarray(rng.uniform(robot.lower, robot.upper))
             qd = jnp.asarray(rng.normal(size=robot.dof))
-            frame, local = robot.sphere_frame, robot.sphere_local.astype(jnp.float64)
+            frame, local = robot.collision.frame, robot.collision.local.astype(jnp.float64)
             f = lambda q_: points(robot, q_, frame, local)  # noqa: E731
             (x, xd), (_, jdqd) = jax.jvp(lambda q_: jax.jvp(f, (q_,), (qd,)), (q,), (qd,))
             ours = point_kinematics(robot, q, qd, frame, local)

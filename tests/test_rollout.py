@@ -245,15 +245,15 @@ def test_sliding_along_a_surface_is_pushed_off(panda):
     from fabrax.robot import point_kinematics
 
     q = jnp.asarray(READY)
-    kin0 = point_kinematics(panda, q, jnp.zeros(7), panda.sphere_frame, panda.sphere_local)
+    kin0 = point_kinematics(panda, q, jnp.zeros(7), panda.collision.frame, panda.collision.local)
     s = 40
-    c, r = np.asarray(kin0.x[:, s]), float(panda.sphere_radius[s])
+    c, r = np.asarray(kin0.x[:, s]), float(panda.collision.radius[s])
     wall = sc.from_dict(
         {"obstacles": [{"type": "cuboid", "center": [float(c[0]), float(c[1]), float(c[2]) - r - 0.03 - 0.01], "size": [2.0, 2.0, 0.02]}]}
     )
     jac = np.asarray(kin0.jac[:, :, s])
     qd = jnp.asarray(np.linalg.lstsq(jac, np.array([0.5, 0.0, 0.0]), rcond=None)[0], jnp.float32)  # sphere s slides along x
-    kin = point_kinematics(panda, q, qd, panda.sphere_frame, panda.sphere_local)
+    kin = point_kinematics(panda, q, qd, panda.collision.frame, panda.collision.local)
     inputs = TermInputs(q, qd, kin, wall, panda)
     pushes = []
     for k_slide in (0.0, 0.5):

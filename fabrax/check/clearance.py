@@ -17,9 +17,9 @@ def state_clearances(robot: Robot, scene: Scene, qs: jax.Array):
 
     def one(q):
         x = sphere_centers(robot, q)
-        env = jnp.min(distance(scene, x) - robot.sphere_radius, initial=jnp.inf)
-        i, j = robot.pair_i, robot.pair_j
-        gap = jnp.linalg.norm(x[i] - x[j], axis=-1) - robot.sphere_radius[i] - robot.sphere_radius[j]
+        env = jnp.min(distance(scene, x) - robot.collision.radius, initial=jnp.inf)
+        i, j = robot.collision.pair_i, robot.collision.pair_j
+        gap = jnp.linalg.norm(x[i] - x[j], axis=-1) - robot.collision.radius[i] - robot.collision.radius[j]
         return env, jnp.min(gap, initial=jnp.inf), robot.within_limits(q, 1e-6)
 
     return jax.vmap(one)(qs)

@@ -199,11 +199,13 @@ class NativeChecker:
     def __init__(self, robot: Robot, scene: Scene, tol: float = 1e-6):
         flat = lambda *arrays, dtype=np.float64: np.ascontiguousarray(np.concatenate([np.asarray(a, dtype).ravel() for a in arrays]))  # noqa: E731
         self.dof = robot.dof
-        counts = (robot.dof, len(robot.sphere_radius), len(robot.pair_i))
+        counts = (robot.dof, len(robot.collision.radius), len(robot.collision.pair_i))
         self.rf = flat(
-            robot.joint_axis, robot.joint_origin_r, robot.joint_origin_t, robot.sphere_local, robot.sphere_radius, robot.lower, robot.upper
+            robot.joint_axis, robot.joint_origin_r, robot.joint_origin_t, robot.collision.local, robot.collision.radius, robot.lower, robot.upper
         )
-        self.ri = flat(counts, robot.joint_revolute, robot.joint_parent, robot.sphere_frame, robot.pair_i, robot.pair_j, dtype=np.int64)
+        self.ri = flat(
+            counts, robot.joint_revolute, robot.joint_parent, robot.collision.frame, robot.collision.pair_i, robot.collision.pair_j, dtype=np.int64
+        )
         arrays = _scene_arrays(scene)
         self.sf = flat(*arrays)
         self.si = np.array([len(arrays[0]), len(arrays[4]), len(arrays[9])], np.int64)

@@ -150,8 +150,8 @@ class Fit:
         from fabrax.problems.workspace import PANDA_REACH, workspace_reach
 
         scale = workspace_reach(robot, frame) / PANDA_REACH
-        base = np.asarray(robot.sphere_frame) == 0  # spheres fixed to the base
-        lowest = float(np.min(np.asarray(robot.sphere_local)[base, 2] - np.asarray(robot.sphere_radius)[base])) if base.any() else 0.0
+        base = np.asarray(robot.collision.frame) == 0  # spheres fixed to the base
+        lowest = float(np.min(np.asarray(robot.collision.local)[base, 2] - np.asarray(robot.collision.radius)[base])) if base.any() else 0.0
         neutral = tuple(np.asarray(robot.ready_q, np.float64).tolist())
         return cls(scale, float(robot.tool_length), neutral, min(MOUNT_TOP, round(lowest - MOUNT_CLEARANCE, 4)))
 

@@ -21,10 +21,10 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from fabrax.robot.limits import max_acceleration
 from fabrax.check.clearance import state_clearances
 from fabrax.problems.problem import Problem
 from fabrax.robot.kinematics import point_kinematics
+from fabrax.robot.limits import max_acceleration
 from fabrax.robot.robot import Robot
 from fabrax.scene import COMMON_CAPACITY, from_dict
 from fabrax.scene.sdf import nearest_distance
@@ -50,7 +50,7 @@ def stopping_margin(robot: Robot, scene, q: jax.Array, qd: jax.Array, dt: float,
     sum_j |u_j| a'_j (u the distance's gradient in joint space: `share` of the largest deceleration the
     joint acceleration limits give it in this configuration; curvature terms ignored); distances that
     grow need nothing. Positive: every approach can still be stopped."""
-    kin = point_kinematics(robot, q, qd, robot.sphere_frame, robot.sphere_local)
+    kin = point_kinematics(robot, q, qd, robot.collision.frame, robot.collision.local)
     near = nearest_distance(scene, kin.x, kin.xd)
     acc = max_acceleration(robot, dt)
 
@@ -58,19 +58,19 @@ def stopping_margin(robot: Robot, scene, q: jax.Array, qd: jax.Array, dt: float,
         cap = share * (jnp.abs(u) @ acc)
         return x - jnp.where(rate < 0, rate**2 / (2.0 * cap + 1e-9) - rate * dt, 0.0)
 
-    scene_margin = margin(near.d - robot.sphere_radius, near.rate, jnp.einsum("cjs,cs->sj", kin.jac, near.n))
-    i, j = robot.pair_i, robot.pair_j
+    scene_margin = margin(near.d - robot.collision.radius, near.rate, jnp.einsum("cjs,cs->sj", kin.jac, near.n))
+    i, j = robot.collision.pair_i, robot.collision.pair_j
     rel = kin.x[:, i] - kin.x[:, j]
     dist = jnp.sqrt(jnp.sum(rel * rel, 0) + 1e-18)
     nrm = rel / dist
     u = jnp.einsum("cjp,cp->pj", kin.jac[:, :, i] - kin.jac[:, :, j], nrm)
-    self_margin = margin(dist - robot.sphere_radius[i] - robot.sphere_radius[j], jnp.sum(nrm * (kin.xd[:, i] - kin.xd[:, j]), 0), u)
+    self_margin = margin(dist - robot.collision.radius[i] - robot.collision.radius[j], jnp.sum(nrm * (kin.xd[:, i] - kin.xd[:, j]), 0), u)
     return jnp.minimum(jnp.min(scene_margin), jnp.min(self_margin, initial=jnp.inf))
 
 
 @jax.jit
 def _motion(robot: Robot, q: jax.Array, qd: jax.Array):
-    kin = point_kinematics(robot, q, qd, robot.sphere_frame, robot.sphere_local)
+    kin = point_kinematics(robot, q, qd, robot.collision.frame, robot.collision.local)
     return kin.jac, kin.x.T, kin.xd.T
 
 
@@ -108,7 +108,7 @@ def sweeps(
             continue
         u = v[i] / speed
         kind = kinds[len(out) % len(kinds)]
-        d0 = rng.uniform(*distance) + float(robot.sphere_radius[i])
+        d0 = rng.uniform(*distance) + float(robot.collision.radius[i])
         tilt = rng.normal(size=3)
         tilt -= (tilt @ u) * u
         tilt /= np.linalg.norm(tilt) + 1e-12

@@ -1,24 +1,47 @@
-"""The self-collision search over the robot's collision spheres: the closest checked sphere pair
-of every checked pair of links (the thesis' link-to-link distance, §3.3.3), per arm and with a
-batch of arms as the minor axis. Its tables (`Robot.pair_i`, `pair_j`, `pair_groups`,
-`link_pair_groups` and masks) are built with the robot (`fabrax.robot.robot`).
+"""The robot's collision bodies as their own pytree: its collision spheres, the checked
+self-collision sphere pairs and the tables of the closest-pair search (the closest checked sphere
+pair of every checked pair of links: the thesis' link-to-link distance, §3.3.3), per arm and with
+a batch of arms as the minor axis. `fabrax.robot.robot.build_robot` fills it from the robot's
+sphere set and self-collision sampling; `Robot.collision` carries it, and a sphere set is swapped
+with `robot.replace(collision=...)`.
 """
 
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+from flax import struct
 
-from fabrax.robot.robot import Robot
 from fabrax.scene.sdf import FAR, argmin_packed, min_packed
 from fabrax.soa import dot0
 
 
-def closest_link_pairs(robot: Robot, x: jax.Array) -> tuple[jax.Array, jax.Array]:
+@struct.dataclass
+class RobotCollision:
+    """Collision spheres on the robot's joint frames and the self-collision search tables."""
+
+    link_names: tuple = struct.field(pytree_node=False)  # the links that carry spheres
+    frame: jax.Array  # (S,) joint frame of each sphere (0 = base)
+    local: jax.Array  # (S, 3) its centre in that frame
+    radius: jax.Array  # (S,)
+    link: jax.Array  # (S,) index into link_names
+    pair_i: jax.Array  # (P,) checked self-collision sphere pairs
+    pair_j: jax.Array
+    pair_groups: jax.Array  # (G, Q) indices into pair_i/pair_j: pairs of one pair of links, at most Q per row, padded
+    pair_groups_mask: jax.Array  # (G, Q)
+    link_pair_groups: jax.Array  # (LP, C) rows of pair_groups that belong to one pair of links, padded
+    link_pair_groups_mask: jax.Array  # (LP, C)
+
+    @property
+    def n_spheres(self) -> int:
+        return int(self.radius.shape[-1])
+
+
+def closest_link_pairs(bodies: RobotCollision, x: jax.Array) -> tuple[jax.Array, jax.Array]:
     """The closest checked sphere pair (i, j) of every checked pair of links, for sphere centres x (3, S).
 
     The checked pairs' gaps, grouped into chunks of at most 16 pairs of one link pair
-    (`robot.pair_groups`): the closest pair of each chunk, then the closest chunk of each link pair,
+    (`bodies.pair_groups`): the closest pair of each chunk, then the closest chunk of each link pair,
     both by packed argmins (`scene.sdf.min_packed`, whose keys also give each chunk's minimum: a
     gather of it made XLA recompute the gaps). The gaps are computed in the chunks' layout
     (sphere indices composed at trace time): gathering per-pair gaps into chunks made XLA recompute
@@ -27,20 +50,21 @@ def closest_link_pairs(robot: Robot, x: jax.Array) -> tuple[jax.Array, jax.Array
     recomputed them per link pair. The self-collision term runs the same search arms-minor under
     `jax.vmap` (`closest_minor`).
     """
-    if robot.pair_i.shape[0] == 0:
-        return robot.pair_i, robot.pair_j
-    return closest_one(jax.lax.stop_gradient(x), *search_tables(robot))
+    if bodies.pair_i.shape[0] == 0:
+        return bodies.pair_i, bodies.pair_j
+    return closest_one(jax.lax.stop_gradient(x), *search_tables(bodies))
 
 
-def search_tables(robot: Robot) -> tuple:
+def search_tables(bodies: RobotCollision) -> tuple:
+    """The arrays `closest_one` and `closest_minor` take, in their order."""
     return (
-        robot.sphere_radius,
-        robot.pair_i,
-        robot.pair_j,
-        robot.pair_groups,
-        robot.pair_groups_mask,
-        robot.link_pair_groups,
-        robot.link_pair_groups_mask,
+        bodies.radius,
+        bodies.pair_i,
+        bodies.pair_j,
+        bodies.pair_groups,
+        bodies.pair_groups_mask,
+        bodies.link_pair_groups,
+        bodies.link_pair_groups_mask,
     )
 
 

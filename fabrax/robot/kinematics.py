@@ -150,7 +150,7 @@ def frame_path(robot, qs, name: str):
 
 def sphere_centers(robot, q):
     """World centres (S, 3) of the collision spheres."""
-    return points(robot, q, robot.sphere_frame, robot.sphere_local)
+    return points(robot, q, robot.collision.frame, robot.collision.local)
 
 
 def keypoints(robot, q):

@@ -46,7 +46,11 @@ def to_mjcf(robot: Robot, capacity: dict[str, int] | None = None, timestep: floa
     inertia = np.zeros((n + 1, 3, 3)) if robot.frame_inertia is None else np.asarray(robot.frame_inertia, float)
     axis, origin_r, origin_t = (np.asarray(a, float) for a in (robot.joint_axis, robot.joint_origin_r, robot.joint_origin_t))
     lower, upper = np.asarray(robot.lower, float), np.asarray(robot.upper, float)
-    s_frame, s_local, s_radius = np.asarray(robot.sphere_frame), np.asarray(robot.sphere_local, float), np.asarray(robot.sphere_radius, float)
+    s_frame, s_local, s_radius = (
+        np.asarray(robot.collision.frame),
+        np.asarray(robot.collision.local, float),
+        np.asarray(robot.collision.radius, float),
+    )
 
     def geoms(frame: int, indent: str) -> list[str]:
         return [

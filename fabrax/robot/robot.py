@@ -17,7 +17,9 @@ from flax import struct
 
 from fabrax.robot import kinematics
 from fabrax.robot import spheres as sphere_lib
+from fabrax.robot.collision import RobotCollision
 from fabrax.robot.urdf import REVOLUTE, KinematicTree, parse_urdf
+from fabrax.settings import check_keys
 
 
 @struct.dataclass
@@ -27,7 +29,6 @@ class Robot:
     joint_parent: tuple = struct.field(pytree_node=False)
     joint_revolute: tuple = struct.field(pytree_node=False)
     frame_names: tuple = struct.field(pytree_node=False)
-    sphere_link_names: tuple = struct.field(pytree_node=False)
     joint_axis: jax.Array  # (n, 3)
     joint_origin_r: jax.Array  # (n, 3, 3)
     joint_origin_t: jax.Array  # (n, 3)
@@ -43,16 +44,7 @@ class Robot:
     frame_parent: jax.Array  # (F,) named frames: links first, then extra frames
     frame_offset_r: jax.Array
     frame_offset_t: jax.Array
-    sphere_frame: jax.Array  # (S,)
-    sphere_local: jax.Array  # (S, 3) centre in its frame
-    sphere_radius: jax.Array  # (S,)
-    sphere_link: jax.Array  # (S,) index into sphere_link_names
-    pair_i: jax.Array  # (P,) self-collision sphere pairs
-    pair_j: jax.Array
-    pair_groups: jax.Array  # (G, Q) indices into pair_i/pair_j: pairs of one pair of links, at most Q per row, padded
-    pair_groups_mask: jax.Array  # (G, Q)
-    link_pair_groups: jax.Array  # (LP, C) rows of pair_groups that belong to one pair of links, padded
-    link_pair_groups_mask: jax.Array  # (LP, C)
+    collision: RobotCollision  # collision spheres and the self-collision search (fabrax.robot.collision)
     ee_frame: str = struct.field(pytree_node=False, default="")  # the end effector's frame (z along the tool's approach)
     tool_length: float = struct.field(pytree_node=False, default=0.0)  # m from ee_frame along its z to the tool centre point
     keypoint_frame: int = struct.field(pytree_node=False, default=0)  # joint frame that carries the keypoints
@@ -69,7 +61,7 @@ class Robot:
 
     @property
     def n_spheres(self) -> int:
-        return int(self.sphere_radius.shape[-1])
+        return self.collision.n_spheres
 
     def frame_index(self, name: str) -> int:
         if name not in self.frame_names:
@@ -230,9 +222,7 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
         "name", "urdf", "active_joints", "held", "acceleration", "jerk", "frames", "spheres", "self_collision", "default_q",
         "keypoints", "ee_frame", "tool_length", "limits",
     }  # fmt: skip
-    unknown = set(cfg) - known
-    if unknown:
-        raise ValueError(f"unknown robot config keys {sorted(unknown)} (known: {sorted(known)})")
+    check_keys(cfg, known, "robot config")
     urdf = resolve_urdf(cfg.get("urdf"))
     tree = parse_urdf(urdf, cfg.get("active_joints"), cfg.get("held"))
     n = tree.dof
@@ -305,7 +295,6 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
         joint_parent=tuple(int(p) for p in tree.joint_parent),
         joint_revolute=tuple(bool(t == REVOLUTE) for t in tree.joint_type),
         frame_names=tuple(frame_names),
-        sphere_link_names=tuple(link_names),
         joint_axis=f32(tree.joint_axis),
         joint_origin_r=f32(origin_r),
         joint_origin_t=f32(origin_t),
@@ -321,16 +310,19 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
         frame_parent=jnp.asarray(frame_parent, jnp.int32),
         frame_offset_r=f32(frame_r),
         frame_offset_t=f32(frame_t),
-        sphere_frame=jnp.asarray(s_frame, jnp.int32),
-        sphere_local=f32(np.asarray(s_local).reshape(-1, 3)),
-        sphere_radius=f32(s_radius),
-        sphere_link=jnp.asarray(s_link, jnp.int32),
-        pair_i=jnp.zeros((0,), jnp.int32),
-        pair_j=jnp.zeros((0,), jnp.int32),
-        pair_groups=jnp.zeros((0, 0), jnp.int32),
-        pair_groups_mask=jnp.zeros((0, 0), bool),
-        link_pair_groups=jnp.zeros((0, 0), jnp.int32),
-        link_pair_groups_mask=jnp.zeros((0, 0), bool),
+        collision=RobotCollision(
+            link_names=tuple(link_names),
+            frame=jnp.asarray(s_frame, jnp.int32),
+            local=f32(np.asarray(s_local).reshape(-1, 3)),
+            radius=f32(s_radius),
+            link=jnp.asarray(s_link, jnp.int32),
+            pair_i=jnp.zeros((0,), jnp.int32),  # the pairs are sampled with this robot's kinematics below
+            pair_j=jnp.zeros((0,), jnp.int32),
+            pair_groups=jnp.zeros((0, 0), jnp.int32),
+            pair_groups_mask=jnp.zeros((0, 0), bool),
+            link_pair_groups=jnp.zeros((0, 0), jnp.int32),
+            link_pair_groups_mask=jnp.zeros((0, 0), bool),
+        ),
     )
     sc = dict(cfg.get("self_collision") or {})
     reference = np.asarray(sc.get("reference_q", cfg.get("default_q")) or np.zeros((0, n)), dtype=np.float64).reshape(-1, n)
@@ -378,12 +370,14 @@ def build_robot(cfg: dict[str, Any]) -> Robot:
         ready_q=f32(ready),
         keypoint_frame=kp_frame,
         keypoint_local=f32(kp_local),
-        pair_i=jnp.asarray(pi),
-        pair_j=jnp.asarray(pj),
-        pair_groups=jnp.asarray(groups),
-        pair_groups_mask=jnp.asarray(group_mask),
-        link_pair_groups=jnp.asarray(link_groups),
-        link_pair_groups_mask=jnp.asarray(link_group_mask),
+        collision=robot.collision.replace(
+            pair_i=jnp.asarray(pi),
+            pair_j=jnp.asarray(pj),
+            pair_groups=jnp.asarray(groups),
+            pair_groups_mask=jnp.asarray(group_mask),
+            link_pair_groups=jnp.asarray(link_groups),
+            link_pair_groups_mask=jnp.asarray(link_group_mask),
+        ),
     )
 
 
@@ -408,9 +402,7 @@ def _keypoint_box(spec, ee_frame, frame_names, frame_parent, frame_offset, link_
     `spec.links` (the end effector's bounding box of thesis §3.4.2), in the joint frame that carries
     them. Without a spec: a 0.1 m cube on the end-effector frame."""
     spec = dict(spec or {})
-    unknown = set(spec) - {"frame", "links"}
-    if unknown:
-        raise ValueError(f"unknown robot.keypoints keys {sorted(unknown)} (known: frame, links)")
+    check_keys(spec, ("frame", "links"), "robot.keypoints")
     name = spec.get("frame") or ee_frame
     if name not in frame_names:
         raise ValueError(f"robot.keypoints.frame '{name}' is not a frame of the robot")

@@ -297,11 +297,11 @@ def rollout(fabric: Fabric, params: Params, scene: Scene, q0, qd0, reached: Reac
 
 
 def reach(
-    fabric, params: Params, problems: dict, aim: str = "joint", stop: str = "goal", settle: float | None = None, sub_batch: int = 64, **kwargs
+    fabric, params: Params, problems, aim: str = "joint", stop: str = "goal", settle: float | None = None, sub_batch: int = 64, **kwargs
 ) -> Trajectory:
     """Roll the fabric out toward each problem's goal, batched with `jax.vmap`.
 
-    `problems` is `fabrax.problems.batch(...)`; `fabric` an `ArmFabric`; `aim` as
+    `problems` is a `fabrax.problems.ProblemBatch` (`fabrax.problems.batch`); `fabric` an `ArmFabric`; `aim` as
     `ArmFabric.with_goal`. stop="goal" ends an arm's rollout at its goal test
     (`reached`), stop="posture" only once the null-space posture has arrived too
     (`posture_reached`); with `settle` (rad/s) the test also needs every joint
@@ -323,5 +323,5 @@ def reach(
         return rollout(fabric, p, scene, start_q, start_qd, test, **kwargs)
 
     b = problems
-    args = (b["start_q"], b["start_qd"], b["joint_goal"], b["goal_q"], b["goal_pos"], b["goal_quat"], b["scene"])
+    args = (b.start_q, b.start_qd, b.joint_goal, b.goal_q, b.goal_pos, b.goal_quat, b.scene)
     return sharding.batched(jax.vmap(one), sub_batch)(*args)

@@ -38,7 +38,7 @@ def decode_path(model, z, robot=None, frame: str = "panda_tcp", seed=None):
 def sphere_clearance(robot, q_path, centers, radii):
     """Smallest distance (m) between the robot's collision spheres along q_path (T, n) and spheres (O, 3), (O,)."""
     c = jax.vmap(lambda q: sphere_centers(robot, q))(q_path)  # (T, S, 3)
-    d = jnp.linalg.norm(c[:, :, None] - centers[None, None], axis=-1) - robot.sphere_radius[None, :, None] - radii[None, None]
+    d = jnp.linalg.norm(c[:, :, None] - centers[None, None], axis=-1) - robot.collision.radius[None, :, None] - radii[None, None]
     return jnp.min(d)
 
 

@@ -44,7 +44,7 @@ class RobotView:
                 raise ValueError(f"joint '{j}' of robot '{robot.name}' is not an actuated joint of its URDF")
             self._slots.append(names.index(j))
         sphere = trimesh.creation.icosphere(subdivisions=1, radius=1.0)
-        r = np.asarray(robot.sphere_radius)
+        r = np.asarray(robot.collision.radius)
         self.spheres = server.scene.add_batched_meshes_simple(
             f"{name}_spheres",
             vertices=np.asarray(sphere.vertices, np.float32),

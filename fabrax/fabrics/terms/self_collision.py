@@ -127,12 +127,12 @@ def self_collision(name: str = "self_collision", resolution: str = "link", arms_
 
     def apply(p, inp: TermInputs) -> Contribution:
         kin, robot = inp.points, inp.robot
-        link = resolution == "link" and robot.pair_i.shape[0] > 0
-        fi, fj = robot.sphere_frame[robot.pair_i], robot.sphere_frame[robot.pair_j]  # every row's two frames
+        link = resolution == "link" and robot.collision.pair_i.shape[0] > 0
+        fi, fj = robot.collision.frame[robot.collision.pair_i], robot.collision.frame[robot.collision.pair_j]  # every row's two frames
         if link:  # one row per link pair: the frames of any of its pairs
-            first = robot.pair_groups[robot.link_pair_groups[:, 0], 0]
+            first = robot.collision.pair_groups[robot.collision.link_pair_groups[:, 0], 0]
             fi, fj = fi[first], fj[first]
         fn = _self_collision_fn(robot.joint_revolute, link, arms_minor)
-        return fn(p, kin.x, kin.xd, kin.jdqd, kin.axes, kin.origins, kin.jac, *search_tables(robot), robot.ancestors, fi, fj)
+        return fn(p, kin.x, kin.xd, kin.jdqd, kin.axes, kin.origins, kin.jac, *search_tables(robot.collision), robot.ancestors, fi, fj)
 
     return Term(name, init, apply, _spheres)
