@@ -96,7 +96,11 @@ def section_ppo(spec, emit, run_dir: Path) -> None:
 
     per_iteration = spec["batch_size"] * spec["num_minibatches"] * spec["unroll_length"]
     hidden = [512, 256, 128] if spec["network"] == "conv" else [32, 32]
+    from fabrax import config
+
     settings = {
+        "robot": config.load("robot", "panda"),
+        "fabric": config.load("fabric", "panda"),
         "env": {"scenes": {"generated": {"cuboid_forest": 8, "shelves": 8, "flying_cuboids": 8}}},
         "eval_scenes": {"seed": 1},
         "network": {"variant": spec["network"], "hidden": hidden},
@@ -135,8 +139,9 @@ def section_gfcs(sizes, emit) -> None:
 
     from fabrax import config
     from fabrax.bench import cli
-    from fabrax.planners.gfcs import GFCOP, solve_batch
+    from fabrax.planners.gfcs import solve_batch
     from fabrax.planners.gfcs.solver import make_step
+    from fabrax.problems import ProblemBatch
     from fabrax.scene import common_capacity
 
     kind = "mbm" if os.environ.get("FABRAX_DATA") else "mbm_like"
@@ -146,7 +151,7 @@ def section_gfcs(sizes, emit) -> None:
     problems = [p for p in cli.load_problems(cfg, robot) if p.valid and p.goal_q is not None]
     method = cli.make_method(cfg, robot)
     setup_s = time.perf_counter() - t0
-    gfcops = [GFCOP.from_problem(p) for p in problems]
+    gfcops = [ProblemBatch.of(p) for p in problems]
     cap = common_capacity([q.scene for q in gfcops])
     gfcops = [q.replace(scene=q.scene.pad(**cap)) for q in gfcops]
     gcfg = method.config
@@ -154,7 +159,7 @@ def section_gfcs(sizes, emit) -> None:
         chosen = [gfcops[i % len(gfcops)] for i in range(k)]
         keys = jax.random.split(jax.random.PRNGKey(0), k)
         fns = make_step(method.fabric, method.params, gcfg, problems=True)
-        results = solve_batch(method.fabric, method.params, GFCOP.stack(chosen), keys, gcfg, steps_fns=fns)
+        results = solve_batch(method.fabric, method.params, ProblemBatch.stack(chosen), keys, gcfg, steps_fns=fns)
         walls = [b["wall_s"] for b in results[0].per_batch]
         clean = sum(r.best_cost < gcfg.penalty for r in results)
         emit(

@@ -1,7 +1,7 @@
 """What a scene's padding costs GFCS: one population rollout (`population_cost`, 64 uniform candidates,
 the settings of configs/method/gfcs.yaml) on MBM train problem 1 of every class, its scene padded to
 `COMMON_CAPACITY` (56 slots: one compiled solver for all) against its own capacity rounded to 8
-slots per kind (`GFCOP.from_problem`'s default: one compilation per size of scene).
+slots per kind (`ProblemBatch.of`'s default: one compilation per size of scene).
 
 Both are compiled side by side in one process and called alternately (`--pairs` pairs, CPU time):
 this VM's speed drifts by 20-50 % within minutes, so only ratios of interleaved calls resolve
@@ -24,9 +24,10 @@ import numpy as np
 
 import fabrax  # noqa: F401  (XLA flags before jax)
 from fabrax import config
-from fabrax.planners.gfcs import GFCOP, GFCSConfig
+from fabrax.planners.gfcs import GFCSConfig
 from fabrax.planners.gfcs.cost import population_cost
 from fabrax.planners.gfcs.solver import uniform_sampler
+from fabrax.problems import ProblemBatch
 from fabrax.problems.mbm import CLASSES, load_mbm
 from fabrax.scene import COMMON_CAPACITY
 
@@ -59,7 +60,7 @@ def main() -> None:
     rows = []
     for cls in args.classes.split(","):
         problem = next(p for p in load_mbm(robot, args.data, [cls], "train", 5) if p.valid)
-        probs = {"common": GFCOP.from_problem(problem, COMMON_CAPACITY), "rounded": GFCOP.from_problem(problem)}
+        probs = {"common": ProblemBatch.of(problem, COMMON_CAPACITY), "rounded": ProblemBatch.of(problem)}
         fns = {k: get(g) for k, g in probs.items()}
         costs = {k: np.asarray(fns[k][0](probs[k], z)) for k in probs}
         cpu = {k: [] for k in probs}

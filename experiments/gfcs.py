@@ -43,8 +43,8 @@ def main(dcfg: DictConfig) -> None:
     import jax
 
     from fabrax import config
-    from fabrax.bench.methods.gfcs import gfcs_config
     from fabrax.bench.methods import GFCSMethod
+    from fabrax.bench.methods.gfcs import gfcs_config
     from fabrax.bench.metrics import Goal
     from fabrax.bench.runner import run, summary_table, write
     from fabrax.planners.gfcs.selfsup import run as learn
@@ -85,7 +85,7 @@ def main(dcfg: DictConfig) -> None:
     }
     if cfg["reactive"]["n_obstacles"] > 0:
         solved = rows if not cfg["reactive"]["results"] else saved_rows(cfg, Path(cfg["reactive"]["results"]))
-        meta["reactive"] = reactive(cfg, robot, fabric, params, test, solved)
+        meta["reactive"] = reactive(cfg, robot, fabric, params, test, solved, gfcs_cfg)
         log.info(f"reactive re-execution: {meta['reactive']['summary']}")
     write(rows, out, meta)
     if rows:
@@ -114,30 +114,42 @@ def saved_rows(cfg: dict, path: Path) -> list[dict]:
     return saved["rows"]
 
 
-def reactive(cfg: dict, robot, fabric, params, problems, rows) -> dict:
-    """gfcs_paper §V: block each solved motion with new cuboids, re-execute the same commands."""
+def reactive(cfg: dict, robot, fabric, params, problems, rows, gfcs_cfg) -> dict:
+    """gfcs_paper §V: block each solved motion with new cuboids and re-execute the same commands;
+    with `reactive.replan_batches` > 0, also re-plan in the new scene by CMA-ES warm-started at the
+    old solution (`fabrax.planners.gfcs.reactive.replan`, a fixed budget of batches)."""
+    import time
+
     import jax
     import jax.numpy as jnp
     import numpy as np
 
     from fabrax.bench.metrics import Goal, evaluate
-    from fabrax.planners.gfcs.cost import GFCOP
-    from fabrax.planners.gfcs.reactive import blocking_cuboids, reexecute, with_obstacles
     from fabrax.check.checker import check_path
+    from fabrax.planners.gfcs.cost import to_unconstrained
+    from fabrax.planners.gfcs.reactive import blocking_cuboids, reexecute, replan, with_obstacles
+    from fabrax.planners.gfcs.solver import make_step
+    from fabrax.problems import ProblemBatch
 
     steps = int(round(cfg["t_max"] / cfg["dt"]))
     final_pose, via = cfg["method"]["final_pose"], cfg["method"]["via_tolerance"]
-    dt = cfg["dt"]
+    dt, goal = cfg["dt"], Goal(**cfg["goal"])
     execute = jax.jit(lambda prob, commands, scene: reexecute(fabric, params, prob, commands, scene, dt, steps, final_pose, via))  # compiled once
+    batches = int(cfg["reactive"]["replan_batches"])
+    if batches < 0:
+        raise SystemExit(f"reactive.replan_batches must be >= 0, got {batches}")
+    replan_cfg = dataclasses.replace(gfcs_cfg, batches=batches, std_init=float(cfg["reactive"]["replan_std"])) if batches else None
+    fns = make_step(fabric, params, replan_cfg) if batches else None
     by_name = {p.name: p for p in problems}
     method = cfg["reactive"]["method"]
     rng = np.random.default_rng(cfg["seed"])
+    key = jax.random.PRNGKey(cfg["seed"])
     out, skipped = [], []
     for row in rows:
         if row["method"] != method or not row.get("success") or row["problem"] not in by_name:
             continue  # another method's, a failed one, or another class's (a saved multi-class run)
         p = by_name[row["problem"]]
-        prob = GFCOP.from_problem(p)
+        prob = ProblemBatch.of(p)
         commands = np.asarray(row["info"]["commands"])
         old = execute(prob, jnp.asarray(commands, jnp.float32), prob.scene)
         q_old = np.asarray(old.q[: int(old.length)])
@@ -148,11 +160,31 @@ def reactive(cfg: dict, robot, fabric, params, problems, rows) -> dict:
             continue
         scene = with_obstacles(p.scene, new)
         blocked = check_path(robot, scene, q_old).collision
+        changed = dataclasses.replace(p, scene=scene)
         tr = execute(prob, jnp.asarray(commands, jnp.float32), scene)
-        m = evaluate(robot, dataclasses.replace(p, scene=scene), np.asarray(tr.q[: int(tr.length)]), cfg["dt"], goal=Goal(**cfg["goal"]))
-        out.append(
-            {"problem": p.name, "old_path_blocked": blocked, "collision_free": not m["collision"], "reached": m["reached"], "success": m["success"]}
-        )
+        m = evaluate(robot, changed, np.asarray(tr.q[: int(tr.length)]), dt, goal=goal)
+        result = {
+            "problem": p.name,
+            "old_path_blocked": blocked,
+            "collision_free": not m["collision"],
+            "reached": m["reached"],
+            "success": m["success"],
+        }
+        if batches:
+            z = to_unconstrained(jnp.asarray(commands, jnp.float32), robot.lower, robot.upper)
+            t0 = time.perf_counter()
+            res = replan(fabric, params, ProblemBatch.of(changed), z, jax.random.fold_in(key, len(out)), replan_cfg, steps_fns=fns)
+            wall = time.perf_counter() - t0 - res.compile_s
+            traj = res.trajectory
+            r = evaluate(robot, changed, np.asarray(traj.q[: int(traj.length)]), dt, goal=goal)
+            result.update(
+                replan_collision_free=not r["collision"],
+                replan_reached=r["reached"],
+                replan_success=r["success"],
+                replan_time_s=wall,
+                replan_ee_length=r["ee_length"],
+            )
+        out.append(result)
     n = len(out)
     rate = lambda k: 100.0 * sum(r[k] for r in out) / n if n else float("nan")  # noqa: E731
     summary = {
@@ -163,6 +195,16 @@ def reactive(cfg: dict, robot, fabric, params, problems, rows) -> dict:
         "reached_pct": rate("reached"),
         "success_pct": rate("success"),
     }
+    if batches and n:
+        summary.update(
+            replan_batches=batches,
+            replan_std=replan_cfg.std_init,
+            replan_population=replan_cfg.population,
+            replan_collision_free_pct=rate("replan_collision_free"),
+            replan_reached_pct=rate("replan_reached"),
+            replan_success_pct=rate("replan_success"),
+            replan_time_s=float(np.mean([r["replan_time_s"] for r in out])),
+        )
     return {"summary": summary, "rows": out, "skipped": skipped}
 
 

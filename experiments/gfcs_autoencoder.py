@@ -13,8 +13,8 @@ import numpy as np
 
 from fabrax import config
 from fabrax.planners.gfcs.autoencoder import fit
-from fabrax.planners.gfcs.cost import GFCOP
 from fabrax.planners.gfcs.encoding import Encoding
+from fabrax.problems import ProblemBatch
 from fabrax.problems.mbm import load_mbm
 
 robot = config.load_robot("panda_mbm")
@@ -23,7 +23,7 @@ classes = ["table_under_pick", "box", "bookshelf_tall", "cage", "bookshelf_thin"
 out = {}
 for split in ("train", "test"):
     ps = [p for p in load_mbm(robot, os.environ["FABRAX_DATA"], classes, split, None) if p.valid]
-    out[split] = np.stack([np.asarray(enc.scene_distances(GFCOP.from_problem(p).scene)) for p in ps])
+    out[split] = np.stack([np.asarray(enc.scene_distances(ProblemBatch.of(p).scene)) for p in ps])
 res = {}
 for latent in (16, 64):
     t0 = time.perf_counter()

@@ -22,8 +22,9 @@ import jax
 import numpy as np
 
 from fabrax import config
-from fabrax.planners.gfcs import GFCOP, GFCSConfig, solve
 from fabrax.check.checker import check_path
+from fabrax.planners.gfcs import GFCSConfig, solve
+from fabrax.problems import ProblemBatch
 
 robot = config.load_robot("panda_mbm")
 fabric, params = config.load_fabric(robot, "panda")
@@ -39,7 +40,7 @@ print(problem.name)
 
 # %%
 cfg = GFCSConfig(population=16, batches=2)
-result = solve(fabric, params, GFCOP.from_problem(problem), jax.random.PRNGKey(0), cfg)
+result = solve(fabric, params, ProblemBatch.of(problem), jax.random.PRNGKey(0), cfg)
 for b in result.per_batch:
     print(f"batch {b['batch']}: best cost {b['best_cost']:.2f} (time to goal, s), {b['wall_s']:.2f} s wall")
 print("command:", np.round(result.best_commands, 2))

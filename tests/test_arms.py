@@ -12,9 +12,9 @@ import pytest
 
 from fabrax import config
 from fabrax import scene as sc
+from fabrax.check.checker import check_path
 from fabrax.fabrics import unforced
 from fabrax.problems import batch, procedural
-from fabrax.check.checker import check_path
 from fabrax.robot import resolve_urdf
 from fabrax.robot.kinematics import frame_pose
 from fabrax.rollout import integrate, reach
@@ -36,7 +36,7 @@ def test_each_arm_builds_with_its_end_effector(arm):
     assert robot.ee_frame == cfg["ee_frame"] and fabric.goal_frame == robot.ee_frame  # the fabric's goal frame derives from it
     assert np.all(np.isfinite(np.asarray(robot.lower))) and np.all(np.asarray(robot.lower) < np.asarray(robot.upper))
     np.testing.assert_allclose(np.asarray(robot.ready_q), cfg["default_q"], atol=1e-6)
-    assert robot.n_spheres > 20 and len(robot.pair_i) > 0  # collision spheres and self-collision pairs
+    assert robot.n_spheres > 20 and len(robot.collision.pair_i) > 0  # collision spheres and self-collision pairs
     assert np.asarray(robot.keypoint_local).shape == (8, 3)
 
 
@@ -119,7 +119,7 @@ def test_rl_env_steps_the_arm_in_both_backends():
     cfg = {"substeps": 5, "scenes": {"generated": {"cuboid_forest": 1, "flying_cuboids": 1}, "configs_per_scene": 2}}
     qs = {}
     for backend in ("kinematic", "mjx"):
-        env = make_env({**cfg, "backend": backend}, robot="ur5")
+        env = make_env({**cfg, "backend": backend}, config.load("robot", "ur5"), config.load("fabric", "panda"))
         assert env.robot.dof == 6
         s = jax.jit(env.reset)(jax.random.PRNGKey(0))
         step = jax.jit(env.step)
@@ -132,12 +132,13 @@ def test_rl_env_steps_the_arm_in_both_backends():
 
 def test_gfcs_plans_for_a_six_joint_arm():
     """GFCS (gfcs_paper) on one generated Kinova problem: commands of the arm's size, a clean arrival."""
-    from fabrax.planners.gfcs import GFCOP, GFCSConfig, solve
+    from fabrax.planners.gfcs import GFCSConfig, solve
+    from fabrax.problems import ProblemBatch
 
     robot = config.load_robot("kinova")
     fab, params = config.load_fabric(robot)
     p = procedural.generate(robot, "mbm_like", ["box"], 1, seed=3)[0]
-    res = solve(fab, params, GFCOP.from_problem(p), jax.random.PRNGKey(0), GFCSConfig(population=16, batches=2))
+    res = solve(fab, params, ProblemBatch.of(p), jax.random.PRNGKey(0), GFCSConfig(population=16, batches=2))
     assert np.asarray(res.best_commands).shape[-1] == robot.dof
     tr = res.trajectory
     assert bool(tr.reached)

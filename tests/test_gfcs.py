@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from fabrax import config
-from fabrax.planners.gfcs import GFCOP, GFCSConfig, sequence_cost, solve, to_commands, to_unconstrained, uniform_sampler
+from fabrax.planners.gfcs import GFCSConfig, sequence_cost, solve, to_commands, to_unconstrained, uniform_sampler
+from fabrax.problems import Problem, ProblemBatch
 from fabrax.robot import frame_pose
 from fabrax.scene import from_dict
 
@@ -19,7 +20,8 @@ def fabric_params(panda):
 
 
 def _problem(goal, obstacles=()):
-    return GFCOP(jnp.asarray(READY), jnp.zeros(7), jnp.asarray(goal, jnp.float32), from_dict({"obstacles": list(obstacles)}, {"cuboids": 2}))
+    scene = from_dict({"obstacles": list(obstacles)}, {"cuboids": 2})
+    return ProblemBatch.of(Problem(np.asarray(READY), scene, goal_q=np.asarray(goal, np.float32)), scene.capacity)
 
 
 def test_commands_stay_inside_limits_and_round_trip(panda):
@@ -88,7 +90,7 @@ def test_solve_batch_equals_solve_per_problem(fabric_params):
     keys = jax.random.split(jax.random.PRNGKey(3), 2)
     cfg = GFCSConfig(population=12, batches=3, t_max=2.0, direct=True)
     alone = [solve(fabric, params, p, k, cfg) for p, k in zip(problems, keys)]
-    together = GFCOP.stack(problems)
+    together = ProblemBatch.stack(problems)
     batch = solve_batch(fabric, params, together, keys, cfg)
     assert len(batch) == 2
     for a, b in zip(alone, batch):
@@ -295,3 +297,29 @@ def test_config_defaults_are_the_method_preset():
 
     cfg = compose(["method=gfcs"])
     assert gfcs_config(cfg["method"], cfg) == GFCSConfig(dt=cfg["dt"], t_max=cfg["t_max"]) == GFCSConfig()
+
+
+def test_replan_is_warm_started_at_the_old_solution(fabric_params, panda):
+    """Re-planning puts the old solution in its first batch, so its best cost is at most the old
+    solution's cost in the new scene; the other candidates spread around it by std_init."""
+    import dataclasses
+
+    from fabrax.planners.gfcs.reactive import replan, warm_samples
+
+    z = to_unconstrained(jnp.asarray(READY + 0.3)[None], panda.lower, panda.upper)
+    s = warm_samples(jax.random.PRNGKey(0), z, 256, 0.3)
+    assert s.shape == (256, 1, 7) and np.array_equal(np.asarray(s[-1]), np.asarray(z))
+    assert float(jnp.std(s[:-1] - z)) == pytest.approx(0.3, rel=0.1)
+    with pytest.raises(ValueError, match="population"):
+        warm_samples(jax.random.PRNGKey(0), z, 1, 0.3)
+
+    fabric, params = fabric_params
+    goal = np.array([1.2, 0.3, 0.2, -1.6, 0.1, 1.9, 0.8], np.float32)
+    wall = {"type": "cuboid", "center": [0.45, 0.3, 0.45], "size": [0.12, 0.12, 0.3]}
+    cfg = dataclasses.replace(GFCSConfig(population=8, batches=1, t_max=2.0), std_init=0.2)
+    problem = _problem(goal, [wall])
+    r = replan(fabric, params, problem, z, jax.random.PRNGKey(3), cfg)
+    kw = dict(steps=cfg.steps, patience=cfg.patience, via_tolerance=cfg.via_tolerance, final_pose=cfg.final_pose, length_weight=cfg.length_weight)
+    old, _ = sequence_cost(fabric, params, problem, z, **kw)
+    assert r.per_batch[0]["best_cost"] <= float(old) * (1 + 1e-5)
+    assert len(r.per_batch) == 1 and r.best_cost <= float(old) * (1 + 1e-5)

@@ -29,7 +29,8 @@ SCRIPT = textwrap.dedent(
     from fabrax.problems.generators import flying_cuboids, random_problems
     from fabrax.rollout import reach, rollout_population
     from fabrax.skills import geodesic
-    from fabrax.planners.gfcs import GFCOP, GFCSConfig, solve
+    from fabrax.planners.gfcs import GFCSConfig, solve
+    from fabrax.problems import ProblemBatch
 
     robot = config.load_robot()
     fab, params = config.load_fabric(robot)
@@ -52,7 +53,7 @@ SCRIPT = textwrap.dedent(
     starts = jnp.asarray([[-1.0, 0.1], [-1.0, -0.2], [-0.8, 0.3], [-1.2, 0.0]])
     geo = geodesic.solver(bump, geodesic.GeodesicConfig(iters=50))(jnp.float32(2.0), starts, -starts[:, ::-1])
     odd = jax.jit(sharding.batched(jax.vmap(lambda z: jnp.sin(z) * jnp.sum(z * z))))(jnp.arange(15.0).reshape(5, 3))  # padded to 6
-    gfcs = solve(fab, params, GFCOP.from_problem(problems[0]), jax.random.PRNGKey(0), GFCSConfig(population=4, batches=2, t_max=0.6))
+    gfcs = solve(fab, params, ProblemBatch.of(problems[0]), jax.random.PRNGKey(0), GFCSConfig(population=4, batches=2, t_max=0.6))
 
     print(json.dumps({
         "devices": jax.local_device_count(), "collectives": collectives,

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax import struct
 
 from fabrax.check.clearance import state_clearances
 from fabrax.robot.robot import Robot
@@ -116,17 +116,66 @@ def flag(robot: Robot, p: Problem, collision_margin: float = 0.0) -> Problem:
     return p
 
 
-def batch(problems: list[Problem]) -> dict[str, Any]:
-    """Stack problems into arrays for `jax.vmap`: start_q (B, n), goal_q (B, n) (zeros where absent),
-    goal_pos (B, 3), goal_quat (B, 4), joint_goal (B,) bool, scene (B, ...) padded to one capacity."""
+@struct.dataclass
+class ProblemBatch:
+    """Problems stacked for `jax.vmap`, one typed goal per problem: a joint goal where `joint_goal`,
+    else a pose goal of the goal frame. Absent parts are placeholders: goal_q zeros, and a pose goal
+    (identity at the origin) until `with_goal_poses` fills in the joint goals' poses."""
+
+    start_q: jax.Array  # (B, n)
+    start_qd: jax.Array  # (B, n)
+    goal_q: jax.Array  # (B, n)
+    goal_pos: jax.Array  # (B, 3)
+    goal_quat: jax.Array  # (B, 4) wxyz
+    joint_goal: jax.Array  # (B,) bool
+    has_pose: jax.Array  # (B,) bool: goal_pos / goal_quat hold a real pose
+    scene: Scene  # (B, ...) padded to one capacity
+
+    def __len__(self) -> int:
+        return self.start_q.shape[0]
+
+    @classmethod
+    def of(cls, p: Problem, capacity: dict[str, int] | None = None) -> "ProblemBatch":
+        """One problem without a batch axis (GFCS solves one at a time, `jax.vmap` adds the axis),
+        its scene padded to `capacity` (e.g. `COMMON_CAPACITY`: every problem runs one compiled
+        solver) or, with None, to its own capacity rounded up to multiples of 8 (`Scene.rounded`:
+        one compilation per size of scene; experiments/bench_scene_padding.py measures the
+        padding's cost)."""
+        scene = p.scene.rounded() if capacity is None else p.scene.pad(**capacity)
+        return jax.tree.map(lambda x: x[0], batch([dataclasses.replace(p, scene=scene)]))
+
+    @classmethod
+    def stack(cls, items: "list[ProblemBatch]") -> "ProblemBatch":
+        """Unbatched problems (`of`) with a leading axis, their scenes padded to the largest
+        capacity of each kind (`fabrax.scene.stack`)."""
+        if not items:
+            raise ValueError("ProblemBatch.stack: no problems")
+        arrays = {f.name: jnp.stack([getattr(b, f.name) for b in items]) for f in dataclasses.fields(cls) if f.name != "scene"}
+        return cls(**arrays, scene=stack([b.scene for b in items]))
+
+    def with_goal_poses(self, robot: Robot, frame: str) -> "ProblemBatch":
+        """Every problem with a goal pose: a joint goal's pose of `frame` by forward kinematics (one
+        batched pass), a given pose kept (the RL guide and the metrics aim every problem at a pose)."""
+        from fabrax.robot.kinematics import frame_path
+
+        pos, quat = frame_path(robot, self.goal_q, frame)
+        keep = self.has_pose[:, None]
+        return self.replace(
+            goal_pos=jnp.where(keep, self.goal_pos, pos), goal_quat=jnp.where(keep, self.goal_quat, quat), has_pose=jnp.ones_like(self.has_pose)
+        )
+
+
+def batch(problems: list[Problem]) -> ProblemBatch:
+    """Stack problems into a `ProblemBatch`; their scenes must share one capacity (`Scene.pad`)."""
     n = len(problems[0].start_q)
     f32 = lambda a: jnp.asarray(np.asarray(a, np.float64), jnp.float32)  # noqa: E731
-    return {
-        "start_q": f32([p.start_q for p in problems]),
-        "start_qd": f32([p.start_qd if p.start_qd is not None else np.zeros(n) for p in problems]),
-        "goal_q": f32([p.goal_q if p.goal_q is not None else np.zeros(n) for p in problems]),
-        "goal_pos": f32([p.goal_pose[0] if p.goal_pose is not None else np.zeros(3) for p in problems]),
-        "goal_quat": f32([p.goal_pose[1] if p.goal_pose is not None else [1, 0, 0, 0] for p in problems]),
-        "joint_goal": jnp.asarray([p.goal_q is not None for p in problems]),
-        "scene": stack([p.scene for p in problems]),
-    }
+    return ProblemBatch(
+        start_q=f32([p.start_q for p in problems]),
+        start_qd=f32([p.start_qd if p.start_qd is not None else np.zeros(n) for p in problems]),
+        goal_q=f32([p.goal_q if p.goal_q is not None else np.zeros(n) for p in problems]),
+        goal_pos=f32([p.goal_pose[0] if p.goal_pose is not None else np.zeros(3) for p in problems]),
+        goal_quat=f32([p.goal_pose[1] if p.goal_pose is not None else [1, 0, 0, 0] for p in problems]),
+        joint_goal=jnp.asarray([p.goal_q is not None for p in problems]),
+        has_pose=jnp.asarray([p.goal_pose is not None for p in problems]),
+        scene=stack([p.scene for p in problems]),
+    )

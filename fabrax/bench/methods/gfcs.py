@@ -64,8 +64,9 @@ class GFCSMethod:
         return jax.random.fold_in(jax.random.PRNGKey(self.seed), zlib_hash(p.name))
 
     def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]:
-        from fabrax.planners.gfcs import GFCOP, GFCSConfig, solve, solve_batch
+        from fabrax.planners.gfcs import GFCSConfig, solve, solve_batch
         from fabrax.planners.gfcs.solver import make_step
+        from fabrax.problems import ProblemBatch
 
         cfg = self.config or GFCSConfig()
         together = self.batch_size > 1
@@ -74,20 +75,20 @@ class GFCSMethod:
         if not together:
             out = []
             for p in problems:
-                prob, key = GFCOP.from_problem(p), self._key(p)
+                prob, key = ProblemBatch.of(p), self._key(p)
                 samples, wall = self._learned(robot, prob, key, cfg)
                 r = solve(self.fabric, self.params, prob, key, cfg, samples=samples, steps_fns=self._steps)
                 out.append(self._solution(r, cfg, wall, 1))
             return out
         # a short last chunk is padded with copies of its last problem: one compiled size
         chunk = list(problems) + [problems[-1]] * (self.batch_size - len(problems)) if len(problems) < self.batch_size else list(problems)
-        probs = [GFCOP.from_problem(p) for p in chunk]
+        probs = [ProblemBatch.of(p) for p in chunk]
         cap = common_capacity([q.scene for q in probs])
         probs = [q.replace(scene=q.scene.pad(**cap)) for q in probs]
         keys = [self._key(p) for p in chunk]
         learned = [self._learned(robot, q, k, cfg) for q, k in zip(probs, keys)]
         samples = None if self.learner is None else jax.numpy.stack([s for s, _ in learned])
-        results = solve_batch(self.fabric, self.params, GFCOP.stack(probs), jax.numpy.stack(keys), cfg, samples=samples, steps_fns=self._steps)
+        results = solve_batch(self.fabric, self.params, ProblemBatch.stack(probs), jax.numpy.stack(keys), cfg, samples=samples, steps_fns=self._steps)
         sampling = sum(w for _, w in learned)
         return [self._solution(r, cfg, sampling, len(chunk)) for r in results[: len(problems)]]
 
@@ -115,10 +116,14 @@ class GFCSMethod:
 
 def gfcs_config(method: dict, cfg: dict):
     """GFCS solver settings from a method config (configs/method/gfcs.yaml) and the run's dt and t_max."""
-    from fabrax.planners.gfcs import GFCSConfig
+    import dataclasses
 
-    keys = ("n_commands", "population", "batches", "std_init", "stop_after", "patience", "via_tolerance", "final_pose", "length_weight", "direct")
-    return GFCSConfig(**{k: method[k] for k in keys}, dt=cfg["dt"], t_max=cfg["t_max"])
+    from fabrax.planners.gfcs import GFCSConfig
+    from fabrax.settings import from_mapping
+
+    fields = {f.name for f in dataclasses.fields(GFCSConfig)}
+    solver = {k: v for k, v in method.items() if k in fields}  # the rest are the bench's (name, report, run, batch_size)
+    return from_mapping(GFCSConfig, {**solver, "dt": cfg["dt"], "t_max": cfg["t_max"]}, "method")
 
 
 def learned_sampler(run_dir: Path, robot: Robot, n_commands: int) -> tuple:

@@ -105,11 +105,11 @@ class RLGuideMethod:
         return float(times.mean()), float(times.std())
 
     def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]:
-        import jax.numpy as jnp
 
         from fabrax.compiled import Compiled
-        from fabrax.robot.kinematics import frame_path, keypoints_at_pose
-        from fabrax.scene import COMMON_CAPACITY, stack
+        from fabrax.problems.problem import batch
+        from fabrax.robot.kinematics import keypoints_at_pose
+        from fabrax.scene import COMMON_CAPACITY
 
         env = self.env
         if robot.dof != env.robot.dof or robot.name != env.robot.name:
@@ -122,23 +122,10 @@ class RLGuideMethod:
             chunk = problems[first : first + self.batch_size]
             size = min(self.batch_size, 1 << (len(chunk) - 1).bit_length())
             padded = chunk + [chunk[-1]] * (size - len(chunk))
-            # goal poses: pose goals as given, joint goals through one batched FK
-            pos = np.zeros((size, 3), np.float32)
-            quat = np.zeros((size, 4), np.float32)
-            joint = [k for k, p in enumerate(padded) if p.goal_pose is None]
-            if joint:
-                jp, jq = frame_path(robot, jnp.asarray(np.stack([padded[k].goal_q for k in joint]), jnp.float32), frame)
-                pos[joint], quat[joint] = np.asarray(jp), np.asarray(jq)
-            for k, p in enumerate(padded):
-                if p.goal_pose is not None:
-                    pos[k], quat[k] = p.goal_pose
-            args = (
-                stack([p.scene.pad(**COMMON_CAPACITY) for p in padded]),
-                jnp.asarray(np.stack([p.start_q for p in padded]), jnp.float32),
-                jnp.asarray(pos),
-                jnp.asarray(quat),
-                jax.vmap(lambda x, r: keypoints_at_pose(robot, frame, x, r))(jnp.asarray(pos), jnp.asarray(quat)),  # keypoints ride on the frame
-            )
+            # every problem aimed at a pose: joint goals' poses by one batched FK
+            b = batch([dataclasses.replace(p, scene=p.scene.pad(**COMMON_CAPACITY)) for p in padded]).with_goal_poses(robot, frame)
+            keypoints = jax.vmap(lambda x, r: keypoints_at_pose(robot, frame, x, r))(b.goal_pos, b.goal_quat)  # keypoints ride on the frame
+            args = (b.scene, b.start_q, b.goal_pos, b.goal_quat, keypoints)
             if self._reaction_ms is None:
                 self._reaction_ms = self.reaction_ms(args)
             run, compile_s = self._run.get(*args)

@@ -10,56 +10,21 @@ it is within epsilon or t_max has passed (eqs. 1-3, 5-7), and
 
 so a colliding candidate never beats a clean one. L_ee is the path length of the
 fabric's goal frame (the paper's "EE length" metric, §IV); w = 0 is eq. 4.
+
+A problem is a `fabrax.problems.ProblemBatch` with joint goals (`ProblemBatch.of(problem)` for one,
+`ProblemBatch.stack` for several): its start state, joint goal and scene.
 """
 
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import numpy as np
-from flax import struct
 
 from fabrax.fabrics.fabric import Params
+from fabrax.problems.problem import ProblemBatch
 from fabrax.robot import points
 from fabrax.rollout.rollout import rollout_population
 from fabrax.rollout.trajectory import Trajectory
-from fabrax.scene import Scene
-
-
-@struct.dataclass
-class GFCOP:
-    """One problem: start state, joint goal and scene (batch it with a leading axis for vmap)."""
-
-    start_q: jax.Array
-    start_qd: jax.Array
-    goal_q: jax.Array
-    scene: Scene
-
-    @classmethod
-    def from_problem(cls, p, capacity: dict[str, int] | None = None) -> "GFCOP":
-        """From a `fabrax.problems.Problem` with a joint goal. capacity: the scene padded to it
-        (e.g. `COMMON_CAPACITY`: every problem runs one compiled solver); None: its own capacity
-        rounded up to multiples of 8 (`Scene.rounded`), one compilation per size of scene. Every
-        slot costs distance evaluations at every step of every candidate
-        (experiments/bench_scene_padding.py measures the padding's cost)."""
-        if p.goal_q is None:
-            raise ValueError(f"{p.name}: GFCS optimises joint-space commands toward a joint goal; this problem has a pose goal")
-        qd = p.start_qd if p.start_qd is not None else np.zeros(len(p.start_q))
-        f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
-        scene = p.scene.rounded() if capacity is None else p.scene.pad(**capacity)
-        return cls(f32(p.start_q), f32(qd), f32(p.goal_q), scene)
-
-    @classmethod
-    def stack(cls, problems: "list[GFCOP]") -> "GFCOP":
-        """K problems as one with a leading axis of K (`solve_batch`), their scenes padded to the
-        largest capacity of each kind (`fabrax.scene.stack`)."""
-        from fabrax.scene import stack
-
-        if not problems:
-            raise ValueError("GFCOP.stack: no problems")
-        arrays = [jnp.stack([getattr(p, f) for p in problems]) for f in ("start_q", "start_qd", "goal_q")]
-        return cls(*arrays, stack([p.scene for p in problems]))
-
 
 MIN_PROGRESS = 0.01  # rad: what counts as getting closer to a command (see `population_cost`'s patience)
 
@@ -78,7 +43,7 @@ def to_unconstrained(q: jax.Array, lower: jax.Array, upper: jax.Array, eps: floa
 def population_cost(
     fabric,
     params: Params,
-    problem: GFCOP,
+    problem: ProblemBatch,
     zs: jax.Array,
     *,
     dt: float = 0.01,
@@ -140,7 +105,7 @@ def ee_length(fabric, qs: jax.Array) -> jax.Array:
     return jnp.sum(jnp.linalg.norm(jnp.diff(pos, axis=-2), axis=-1), axis=-1)
 
 
-def sequence_cost(fabric, params: Params, problem: GFCOP, z: jax.Array, **kwargs) -> tuple[jax.Array, Trajectory]:
+def sequence_cost(fabric, params: Params, problem: ProblemBatch, z: jax.Array, **kwargs) -> tuple[jax.Array, Trajectory]:
     """GFCOP cost of one candidate z (n, dof) and its trajectory (keywords as `population_cost`)."""
     costs, trajs = population_cost(fabric, params, problem, z[None], **kwargs)
     return costs[0], jax.tree.map(lambda a: a[0], trajs)

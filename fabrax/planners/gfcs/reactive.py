@@ -6,6 +6,10 @@ the middle of the trajectory, so the old motion runs into it, and is rejected
 if it touches the start or goal configuration. The same commands are then
 executed by the fabric in the new scene without re-optimising; the fabric's
 obstacle terms must avoid what the optimiser never saw.
+
+`replan` is what the paper does not: CMA-ES again in the new scene, warm-started at the old
+solution, for a fixed budget of batches (Algorithm 1 with its first population drawn around the
+previous command sequence instead of uniformly).
 """
 
 from __future__ import annotations
@@ -14,8 +18,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fabrax.planners.gfcs.cost import GFCOP
 from fabrax.check.checker import check_path
+from fabrax.planners.gfcs.solver import GFCSConfig, GFCSResult, solve
+from fabrax.problems.problem import ProblemBatch
 from fabrax.robot.kinematics import sphere_centers
 from fabrax.rollout.rollout import rollout_sequence
 from fabrax.rollout.trajectory import Trajectory
@@ -68,7 +73,15 @@ def with_obstacles(scene: Scene, obstacles: list[dict]) -> Scene:
 
 
 def reexecute(
-    fabric, params, problem: GFCOP, commands: jax.Array, scene: Scene, dt: float = 0.01, steps: int = 700, final_pose: bool = True, via_tolerance=None
+    fabric,
+    params,
+    problem: ProblemBatch,
+    commands: jax.Array,
+    scene: Scene,
+    dt: float = 0.01,
+    steps: int = 700,
+    final_pose: bool = True,
+    via_tolerance=None,
 ) -> Trajectory:
     """Execute commands (n, dof) then the goal with the fabric in `scene`, without re-optimising
     (final_pose, via_tolerance as in `GFCSConfig`: the sequence as the solver ran it)."""
@@ -78,3 +91,24 @@ def reexecute(
     params_seq = jax.tree.map(lambda a, f: a.at[-1].set(f), params_seq, final)
     via = None if via_tolerance is None else lambda p, q, qd: fabric.joint_reached(p, q, qd, via_tolerance)
     return rollout_sequence(fabric, params_seq, scene, problem.start_q, problem.start_qd, fabric.reached, dt=dt, steps=steps, via=via)
+
+
+def warm_samples(key: jax.Array, z, population: int, sigma: float) -> jax.Array:
+    """A first CMA-ES population (population, n, dof) around a previous solution z (n, dof) in the
+    unconstrained space: population - 1 Gaussian perturbations of std `sigma`, then z itself last
+    (the first slot is the one `GFCSConfig.direct` replaces with the fabric alone)."""
+    if population < 2:
+        raise ValueError(f"warm_samples: population must be at least 2, got {population}")
+    z = jnp.asarray(z, jnp.float32)
+    noise = sigma * jax.random.normal(key, (population - 1, *z.shape), jnp.float32)
+    return jnp.concatenate([z[None] + noise, z[None]])
+
+
+def replan(fabric, params, problem: ProblemBatch, z, key: jax.Array, cfg: GFCSConfig, steps_fns=None) -> GFCSResult:
+    """Re-plan `problem` (its changed scene, from its start state) by CMA-ES warm-started at the
+    previous solution z (n, dof, unconstrained): `warm_samples` with std cfg.std_init as the first
+    batch, CMA-ES's step size the same, for cfg.batches batches (a fixed budget). `steps_fns`:
+    `make_step(fabric, params, cfg)` with this cfg, reused across problems."""
+    k_samples, k_solve = jax.random.split(key)
+    samples = warm_samples(k_samples, z, cfg.population, cfg.std_init)
+    return solve(fabric, params, problem, k_solve, cfg, samples=samples, steps_fns=steps_fns)

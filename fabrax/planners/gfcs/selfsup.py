@@ -26,10 +26,12 @@ from flax import nnx, serialization, traverse_util
 
 from fabrax.planners.gfcs.autoencoder import DistanceAE
 from fabrax.planners.gfcs.autoencoder import fit as fit_autoencoder
-from fabrax.planners.gfcs.cost import GFCOP, to_commands, to_unconstrained
+from fabrax.planners.gfcs.cost import to_commands, to_unconstrained
 from fabrax.planners.gfcs.ebm import EnergyModel, SGLDConfig, sgld, train_step
 from fabrax.planners.gfcs.encoding import Encoding
 from fabrax.planners.gfcs.solver import GFCSConfig, make_step, solve
+from fabrax.problems.problem import ProblemBatch
+from fabrax.settings import from_mapping
 from fabrax.state_io import from_flat, to_flat
 
 
@@ -137,10 +139,8 @@ def load(path: Path, context_dim: int, target_dim: int, cfg: SelfSupConfig, expe
 
 def settings(cfg: dict) -> tuple[SelfSupConfig, Encoding]:
     """SelfSupConfig and Encoding from an experiments/gfcs.py config (its `selfsup`, `encoding`, `seed`)."""
-    ss = dict(cfg["selfsup"])
-    ss_cfg = SelfSupConfig(**{**ss, "sgld": SGLDConfig(**ss["sgld"]), "seed": cfg["seed"]})
-    enc = Encoding(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg["encoding"].items()})
-    return ss_cfg, enc
+    ss_cfg = from_mapping(SelfSupConfig, {**cfg["selfsup"], "seed": cfg["seed"]}, "selfsup")
+    return ss_cfg, from_mapping(Encoding, cfg["encoding"], "encoding")
 
 
 def load_run(run_dir: str | Path, run_cfg: dict, robot, n_commands: int) -> tuple[Learner, SelfSupConfig, Encoding]:
@@ -191,7 +191,7 @@ def run(
     """Algorithm 2 over `problems` (joint goals) for `cfg.passes` passes; resumes from `checkpoint`
     when it exists. stop_after: return after this many solves in this call (to test resumption)."""
     robot = fabric.robot
-    gfcops = [GFCOP.from_problem(p) for p in problems]
+    gfcops = [ProblemBatch.of(p) for p in problems]
     raw = np.stack([np.asarray(encoding.context(robot, g.start_q, g.start_qd, g.goal_q, g.scene), np.float32) for g in gfcops])
     target_dim = gfcs_cfg.n_commands * robot.dof
     checkpoint = Path(checkpoint)

@@ -20,7 +20,8 @@ from evosax.algorithms import CMA_ES
 
 from fabrax.compiled import Compiled, run
 from fabrax.fabrics.fabric import Params
-from fabrax.planners.gfcs.cost import GFCOP, population_cost, to_commands, to_unconstrained
+from fabrax.planners.gfcs.cost import population_cost, to_commands, to_unconstrained
+from fabrax.problems.problem import ProblemBatch
 from fabrax.rollout.trajectory import Trajectory
 
 
@@ -73,7 +74,7 @@ def uniform_sampler(key: jax.Array, robot, population: int, n_commands: int) -> 
     return jnp.log(u) - jnp.log1p(-u)
 
 
-def _evaluate(fabric, params: Params, problem: GFCOP, pop: jax.Array, cfg: GFCSConfig):
+def _evaluate(fabric, params: Params, problem: ProblemBatch, pop: jax.Array, cfg: GFCSConfig):
     costs, trajs = population_cost(
         fabric,
         params,
@@ -135,10 +136,11 @@ def _check_samples(samples, shape: tuple) -> jax.Array:
     return jnp.asarray(samples)
 
 
-def solve(fabric, params: Params, problem: GFCOP, key: jax.Array, cfg: GFCSConfig = GFCSConfig(), samples=None, steps_fns=None) -> GFCSResult:
+def solve(fabric, params: Params, problem: ProblemBatch, key: jax.Array, cfg: GFCSConfig = GFCSConfig(), samples=None, steps_fns=None) -> GFCSResult:
     """Algorithm 1 on one problem. samples: (population, n, dof) warm-start candidates in the
     unconstrained space (default: uniform). steps_fns: reuse `make_step(...)` across problems."""
     robot = fabric.robot
+    _joint_goals(problem)
     fns = steps_fns or make_step(fabric, params, cfg)
     if fns.problems:
         raise ValueError("solve: steps_fns were made for batches of problems (make_step(problems=True)); use solve_batch")
@@ -152,15 +154,16 @@ def solve(fabric, params: Params, problem: GFCOP, key: jax.Array, cfg: GFCSConfi
 
 
 def solve_batch(
-    fabric, params: Params, problems: GFCOP, keys: jax.Array, cfg: GFCSConfig = GFCSConfig(), samples=None, steps_fns=None
+    fabric, params: Params, problems: ProblemBatch, keys: jax.Array, cfg: GFCSConfig = GFCSConfig(), samples=None, steps_fns=None
 ) -> list[GFCSResult]:
-    """Algorithm 1 on K problems at once: `problems` is a `GFCOP` whose leaves have a leading axis of
+    """Algorithm 1 on K problems at once: `problems` is a `ProblemBatch` whose leaves have a leading axis of
     K (scenes padded to one capacity, e.g. `fabrax.scene.stack`), `keys` (K,) one key per problem.
     Every batch rolls out all K populations in one call and runs K CMA-ES updates in one `vmap`, so
     an accelerator steps K x population arms together; each problem's result is the one `solve`
     gives it with its key (float rounding aside). samples: (K, population, n, dof) or None (uniform).
     Per-batch wall times are the whole batch's, shared by its problems."""
     robot = fabric.robot
+    _joint_goals(problems)
     fns = steps_fns or make_step(fabric, params, cfg, problems=True)
     if not fns.problems:
         raise ValueError("solve_batch: steps_fns were made for one problem; use make_step(..., problems=True)")
@@ -176,6 +179,14 @@ def solve_batch(
         samples = samples.at[:, 0].set(to_unconstrained(problems.start_q, robot.lower, robot.upper)[:, None])
     batch_keys = jax.vmap(lambda kk: jax.random.split(kk, cfg.batches))(keys)  # (K, batches)
     return _optimise(fns, robot, problems, samples, jnp.swapaxes(batch_keys, 0, 1), cfg, k)
+
+
+def _joint_goals(problems: ProblemBatch) -> None:
+    """GFCS commands joint configurations toward a joint goal: a pose goal fails here, before any work."""
+    if not isinstance(problems, ProblemBatch):
+        raise ValueError(f"GFCS takes a fabrax.problems.ProblemBatch (ProblemBatch.of(problem)), got {type(problems).__name__}")
+    if not np.all(np.asarray(problems.joint_goal)):
+        raise ValueError("GFCS optimises joint-space commands toward a joint goal; a problem has a pose goal (give it an IK joint goal)")
 
 
 def _optimise(fns: BatchFns, robot, problem, samples, keys, cfg: GFCSConfig, k: int) -> list[GFCSResult]:
