@@ -1,4 +1,4 @@
-"""Training the RL guide (issue 14): the training wrappers, a few hundred PPO steps that change the
+"""Training the RL guide: the training wrappers, a few hundred PPO steps that change the
 networks, checkpoint -> resume, settings checks, and the benchmark method on a checkpoint."""
 
 import json
@@ -96,11 +96,12 @@ def test_ppo_steps_change_the_networks_and_write_the_run(run):
     evals = [r for r in rows if "eval" in r]
     assert len(evals) >= 2 and all(0.0 <= r["eval"]["success"] <= 1.0 for r in evals)
     assert all(r["eval"]["stage_per_step"] == 2.0 for r in evals)  # evaluation runs the task
-    # PPO's approximate KL between the policy that collected a batch and the updated one stays bounded;
+    # PPO's approximate KL between the policy that collected a batch and the updated one stays small:
     # with brax's unclipped normaliser the stage-1-constant switch observation blew it up by orders of
-    # magnitude (docs/results.md, "PPO's KL with clipped observations")
-    kl = [r["ppo"]["kl_mean"] for r in rows if "ppo" in r]
-    assert kl and max(kl) < 100.0, kl
+    # magnitude, and with the normaliser moved before the update (a fixed rate) the first updates
+    # read ~15 (docs/results.md, "PPO's KL")
+    kl = [r["train"]["kl_mean"] for r in rows if "train" in r and "kl_mean" in r["train"]]
+    assert kl and max(kl) < 2.0, kl
     trained = [r for r in rows if "train" in r and "unique_cells" in r["train"]]
     assert trained and all(0 < r["train"]["unique_cells"] <= 8000 for r in trained)  # final counts, not sums over steps
     assert (run_dir / "curves.png").stat().st_size > 0

@@ -59,6 +59,13 @@ class PPOConfig:
     reward_scaling: float = 1.0
     max_grad_norm: float | None = 1.0
     normalize_observations: bool = True
+    # ADAPTIVE_KL: rl-games' adaptive schedule, as IsaacGym's PPO configs run it (the rate shrinks
+    # by 1.5 while the KL exceeds twice desired_kl and grows below half); brax then also moves the
+    # observation normaliser after the update. NONE (a fixed rate): brax moves the normaliser
+    # before the update, so the update's log-probabilities disagree with the rollout's while the
+    # statistics move, and the early KL is large (docs/results.md, "PPO's KL").
+    learning_rate_schedule: str = "ADAPTIVE_KL"
+    desired_kl: float = 0.008
     num_evals: int = 10
     num_eval_envs: int = 64
     seed: int = 0
@@ -67,6 +74,8 @@ class PPOConfig:
 def ppo_config(cfg: dict | None) -> PPOConfig:
     """A `PPOConfig` from a mapping (the `ppo` section), its ranges and batch shapes checked."""
     p = from_mapping(PPOConfig, cfg, "ppo")
+    if p.learning_rate_schedule not in ("NONE", "ADAPTIVE_KL"):
+        raise ValueError(f"ppo.learning_rate_schedule must be NONE or ADAPTIVE_KL, got {p.learning_rate_schedule!r}")
     for f in dataclasses.fields(PPOConfig):
         v = getattr(p, f.name)
         if isinstance(v, bool) or v is None:
