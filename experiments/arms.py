@@ -51,6 +51,27 @@ def summarise(rows: list[dict]) -> dict:
     }
 
 
+def markdown(result: dict) -> str:
+    """One table: success % (collision %) per arm, method and class, EE length, plan time, errors."""
+    cell = lambda s: "–" if s["valid"] == 0 else f"{s['success']:.0f} ({s['collision']:.0f})"  # noqa: E731
+    length = lambda s: "–" if s["ee_length"] is None else f"{s['ee_length']:.2f}"  # noqa: E731
+    cfg = next(iter(result["runs"].values()))["config"]
+    lines = [
+        f"success % (collision %) on {cfg['limit']} generated MBM-like {cfg['split']} problems per class; EE length (m) over successes",
+        "",
+        "| arm | method | " + " | ".join(CLASSES) + " | all | EE length | plan time (s) | errors |",
+        "|---|---|" + "---:|" * (len(CLASSES) + 4),
+    ]
+    for arm, methods in result["table"].items():
+        for method, s in methods.items():
+            t = s["all"]["plan_time_s"]
+            lines.append(
+                f"| {arm} | {method} | " + " | ".join(cell(s[c]) for c in CLASSES)
+                + f" | {cell(s['all'])} | {length(s['all'])} | {'–' if t is None else f'{t:.2f}'} | {s['all']['errors']} |"
+            )  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--arms", nargs="+", default=list(ARMS))
@@ -71,24 +92,11 @@ def main(argv: list[str] | None = None) -> int:
             table.setdefault(arm, {})[method] = {"all": summarise(rows), **{c: summarise([r for r in rows if r["class"] == c]) for c in CLASSES}}
             meta[f"{arm}/{method}"] = {k: res["meta"].get(k) for k in ("config", "machine", "versions", "source", "wall_s")}
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.with_suffix(".json").write_text(json.dumps({"table": table, "runs": meta}, indent=1))
-    cell = lambda s: "–" if s["valid"] == 0 else f"{s['success']:.0f} ({s['collision']:.0f})"  # noqa: E731
-    length = lambda s: "–" if s["ee_length"] is None else f"{s['ee_length']:.2f}"  # noqa: E731
-    lines = [
-        f"success % (collision %) on {args.limit} generated MBM-like {args.split} problems per class; EE length (m) over successes",
-        "",
-        "| arm | method | " + " | ".join(CLASSES) + " | all | EE length | plan time (s) | errors |",
-        "|---|---|" + "---:|" * (len(CLASSES) + 4),
-    ]
-    for arm, methods in table.items():
-        for method, s in methods.items():
-            t = s["all"]["plan_time_s"]
-            lines.append(
-                f"| {arm} | {method} | " + " | ".join(cell(s[c]) for c in CLASSES)
-                + f" | {cell(s['all'])} | {length(s['all'])} | {'–' if t is None else f'{t:.2f}'} | {s['all']['errors']} |"
-            )  # fmt: skip
-    args.out.with_suffix(".md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    result = {"table": table, "runs": meta}
+    args.out.with_suffix(".json").write_text(json.dumps(result, indent=1))
+    text = markdown(result)
+    args.out.with_suffix(".md").write_text(text)
+    print(text)
     print(f"wrote {args.out.with_suffix('.md')} and {args.out.with_suffix('.json')}")
     return 0
 
