@@ -127,7 +127,7 @@ def reactive(cfg: dict, robot, fabric, params, problems, rows, gfcs_cfg) -> dict
     from fabrax.bench.metrics import Goal, evaluate
     from fabrax.check.checker import check_path
     from fabrax.planners.gfcs.cost import to_unconstrained
-    from fabrax.planners.gfcs.reactive import blocking_cuboids, reexecute, replan, with_obstacles
+    from fabrax.planners.gfcs.reactive import blocking_cuboids, reexecute, replan, replan_config, with_obstacles
     from fabrax.planners.gfcs.solver import make_step
     from fabrax.problems import ProblemBatch
 
@@ -136,9 +136,10 @@ def reactive(cfg: dict, robot, fabric, params, problems, rows, gfcs_cfg) -> dict
     dt, goal = cfg["dt"], Goal(**cfg["goal"])
     execute = jax.jit(lambda prob, commands, scene: reexecute(fabric, params, prob, commands, scene, dt, steps, final_pose, via))  # compiled once
     batches = int(cfg["reactive"]["replan_batches"])
-    if batches < 0:
-        raise SystemExit(f"reactive.replan_batches must be >= 0, got {batches}")
-    replan_cfg = dataclasses.replace(gfcs_cfg, batches=batches, std_init=float(cfg["reactive"]["replan_std"])) if batches else None
+    try:
+        replan_cfg = replan_config(gfcs_cfg, batches, float(cfg["reactive"]["replan_std"])) if batches else None
+    except ValueError as e:
+        raise SystemExit(f"experiments/gfcs.py: reactive.replan_batches or replan_std: {e}") from None
     fns = make_step(fabric, params, replan_cfg) if batches else None
     by_name = {p.name: p for p in problems}
     method = cfg["reactive"]["method"]

@@ -302,9 +302,7 @@ def test_config_defaults_are_the_method_preset():
 def test_replan_is_warm_started_at_the_old_solution(fabric_params, panda):
     """Re-planning puts the old solution in its first batch, so its best cost is at most the old
     solution's cost in the new scene; the other candidates spread around it by std_init."""
-    import dataclasses
-
-    from fabrax.planners.gfcs.reactive import replan, warm_samples
+    from fabrax.planners.gfcs.reactive import replan, replan_config, warm_samples
 
     z = to_unconstrained(jnp.asarray(READY + 0.3)[None], panda.lower, panda.upper)
     s = warm_samples(jax.random.PRNGKey(0), z, 256, 0.3)
@@ -316,7 +314,10 @@ def test_replan_is_warm_started_at_the_old_solution(fabric_params, panda):
     fabric, params = fabric_params
     goal = np.array([1.2, 0.3, 0.2, -1.6, 0.1, 1.9, 0.8], np.float32)
     wall = {"type": "cuboid", "center": [0.45, 0.3, 0.45], "size": [0.12, 0.12, 0.3]}
-    cfg = dataclasses.replace(GFCSConfig(population=8, batches=1, t_max=2.0), std_init=0.2)
+    cfg = replan_config(GFCSConfig(population=8, t_max=2.0), batches=1, std=0.2)
+    assert cfg.patience is None and cfg.std_init == 0.2
+    with pytest.raises(ValueError, match="batches"):
+        replan_config(cfg, batches=0)
     problem = _problem(goal, [wall])
     r = replan(fabric, params, problem, z, jax.random.PRNGKey(3), cfg)
     kw = dict(steps=cfg.steps, patience=cfg.patience, via_tolerance=cfg.via_tolerance, final_pose=cfg.final_pose, length_weight=cfg.length_weight)

@@ -14,6 +14,8 @@ previous command sequence instead of uniformly).
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -104,11 +106,23 @@ def warm_samples(key: jax.Array, z, population: int, sigma: float) -> jax.Array:
     return jnp.concatenate([z[None] + noise, z[None]])
 
 
+def replan_config(cfg: GFCSConfig, batches: int = 2, std: float = 0.3) -> GFCSConfig:
+    """The solver settings of `replan`: a fixed budget of `batches`, CMA-ES's step size `std`, and
+    no patience, so that the old solution's rollout in the first batch is its re-execution (a
+    patience cut would drop a slow detour that re-execution completes, and the re-plan could
+    answer worse than re-executing)."""
+    if batches < 1:
+        raise ValueError(f"replan: batches must be at least 1, got {batches}")
+    if not std > 0:
+        raise ValueError(f"replan: std must be positive, got {std}")
+    return dataclasses.replace(cfg, batches=int(batches), std_init=float(std), patience=None)
+
+
 def replan(fabric, params, problem: ProblemBatch, z, key: jax.Array, cfg: GFCSConfig, steps_fns=None) -> GFCSResult:
     """Re-plan `problem` (its changed scene, from its start state) by CMA-ES warm-started at the
     previous solution z (n, dof, unconstrained): `warm_samples` with std cfg.std_init as the first
-    batch, CMA-ES's step size the same, for cfg.batches batches (a fixed budget). `steps_fns`:
-    `make_step(fabric, params, cfg)` with this cfg, reused across problems."""
+    batch, CMA-ES's step size the same, for cfg.batches batches (a fixed budget). cfg: a
+    `replan_config`; `steps_fns`: `make_step(fabric, params, cfg)` with it, reused across problems."""
     k_samples, k_solve = jax.random.split(key)
     samples = warm_samples(k_samples, z, cfg.population, cfg.std_init)
     return solve(fabric, params, problem, k_solve, cfg, samples=samples, steps_fns=steps_fns)
