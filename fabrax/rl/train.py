@@ -34,6 +34,7 @@ import jax
 
 from fabrax.rl.config import env_config
 from fabrax.rl.env import make_env
+from fabrax.rl.memory import check_rollout_fits
 from fabrax.rl.networks import make_guide_networks, ppo_observation
 from fabrax.rl.wrappers import FixedStage, wrap_for_training
 from fabrax.settings import check_keys, from_mapping
@@ -227,6 +228,7 @@ def train(settings: dict[str, Any], run_dir: str | Path, resume: bool = False, d
         raise ValueError(f"{run_dir} has already trained {offset} of ppo.num_timesteps={p.num_timesteps} env steps")
 
     env = make_env(settings["env"], settings["robot"], settings["fabric"], data_dir)
+    check_rollout_fits(p, env.observation_size)  # a clear error now, not an allocation failure in the first compile
     eval_env = FixedStage(make_env(eval_settings(settings["env"], settings["eval_scenes"]), settings["robot"], settings["fabric"], data_dir), 2)
     factory = functools.partial(make_guide_networks, variant=settings["network"]["variant"], hidden=tuple(settings["network"]["hidden"]))
     cur = settings["curriculum"]
