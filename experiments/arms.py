@@ -80,11 +80,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--split", default="test", choices=["test", "train"])
     parser.add_argument("--out", type=Path, default=Path("docs/results/arms"))
     parser.add_argument("--runs", type=Path, default=Path("bench_out/arms"), help="where the bench runs go")
+    parser.add_argument("--merge", action="store_true", help="replace only these arms' rows in an existing OUT.json")
     args = parser.parse_args(argv)
 
     runs_dir = args.runs
     table: dict = {}
     meta: dict = {}
+    if args.merge and args.out.with_suffix(".json").exists():  # these (arm, method) entries replace the file's
+        old = json.loads(args.out.with_suffix(".json").read_text())
+        table, meta = old["table"], old["runs"]
     for arm in args.arms:
         for method in args.methods:
             res = run(arm, method, args.limit, args.split, runs_dir / f"{arm}_{method}")
@@ -92,7 +96,8 @@ def main(argv: list[str] | None = None) -> int:
             table.setdefault(arm, {})[method] = {"all": summarise(rows), **{c: summarise([r for r in rows if r["class"] == c]) for c in CLASSES}}
             meta[f"{arm}/{method}"] = {k: res["meta"].get(k) for k in ("config", "machine", "versions", "source", "wall_s")}
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    result = {"table": table, "runs": meta}
+    order = [a for a in ARMS if a in table] + [a for a in table if a not in ARMS]
+    result = {"table": {a: table[a] for a in order}, "runs": meta}
     args.out.with_suffix(".json").write_text(json.dumps(result, indent=1))
     text = markdown(result)
     args.out.with_suffix(".md").write_text(text)

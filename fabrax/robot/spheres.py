@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 
 from fabrax.robot.urdf import CollisionGeometry, KinematicTree
 
-CACHE_VERSION = 3
+CACHE_VERSION = 4  # 4: containment tests made deterministic (`_contains`)
 
 
 def geometry_mesh(g: CollisionGeometry) -> trimesh.Trimesh:
@@ -58,13 +58,28 @@ def sample_surface(meshes: list[trimesh.Trimesh], spacing: float, seed: int) -> 
     return np.concatenate(pts), np.concatenate(normals)
 
 
-def _candidates(meshes, pts, normals, rng, max_candidates: int) -> tuple[np.ndarray, np.ndarray]:
+def _contains(mesh: trimesh.Trimesh, points: np.ndarray, seed: int) -> np.ndarray:
+    """`mesh.contains`, deterministic: trimesh re-casts the rays whose two directions disagree in a
+    direction drawn from its shared, entropy-seeded generator, so the same fit could differ between
+    processes; that generator is swapped for a seeded one during the call."""
+    util = trimesh.util
+    if not hasattr(util, "_RANDOM_DEFAULT"):  # another trimesh layout: its own behaviour
+        return mesh.contains(points)
+    shared = util._RANDOM_DEFAULT
+    util._RANDOM_DEFAULT = np.random.default_rng(seed)
+    try:
+        return mesh.contains(points)
+    finally:
+        util._RANDOM_DEFAULT = shared
+
+
+def _candidates(meshes, pts, normals, rng, max_candidates: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Interior points along inward normals and their depth (distance to the nearest surface sample)."""
     depths = np.geomspace(0.002, 0.15, 12)
     cand = (pts[:, None] - normals[:, None] * depths[None, :, None]).reshape(-1, 3)
     inside = np.zeros(len(cand), bool)
     for mesh in meshes:
-        inside |= mesh.contains(cand) if mesh.is_watertight else False
+        inside |= _contains(mesh, cand, seed) if mesh.is_watertight else False
     cand = cand[inside] if inside.any() else pts.copy()
     if len(cand) > max_candidates:
         cand = cand[rng.choice(len(cand), max_candidates, replace=False)]
@@ -111,7 +126,7 @@ def fit_spheres(tree: KinematicTree, budget: int, tolerance: float = 0.001, spac
         if len(pts) > max_samples:
             keep = rng.choice(len(pts), max_samples, replace=False)
             pts, normals = pts[keep], normals[keep]
-        cand, depth = _candidates(ms, pts, normals, rng, 2 * max_samples)
+        cand, depth = _candidates(ms, pts, normals, rng, 2 * max_samples, seed)
         dist = np.sqrt(((cand[:, None] - pts[None]) ** 2).sum(-1))
         data[name] = (pts, cand, depth, dist)
 
