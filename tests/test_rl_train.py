@@ -98,8 +98,8 @@ def test_ppo_steps_change_the_networks_and_write_the_run(run):
     assert all(r["eval"]["stage_per_step"] == 2.0 for r in evals)  # evaluation runs the task
     # PPO's approximate KL between the policy that collected a batch and the updated one stays small:
     # with brax's unclipped normaliser the stage-1-constant switch observation blew it up by orders of
-    # magnitude, and with the normaliser moved before the update (a fixed rate) the first updates
-    # read ~15 (docs/results.md, "PPO's KL")
+    # magnitude, and with the normaliser moved before the update (brax's NONE schedule) the first
+    # updates read ~15 (docs/results.md, "PPO's KL")
     kl = [r["train"]["kl_mean"] for r in rows if "train" in r and "kl_mean" in r["train"]]
     assert kl and max(kl) < 2.0, kl
     trained = [r for r in rows if "train" in r and "unique_cells" in r["train"]]

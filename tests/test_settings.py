@@ -112,3 +112,18 @@ def test_the_rl_base_preset_restates_the_dataclass_defaults():
     for key, value in env.items():
         assert value == getattr(EnvConfig(), key), key
     assert scenes["generated"] == dict(ScenesConfig().generated)
+
+
+def test_ppo_schedules_map_to_brax_arguments():
+    """FIXED is brax's ADAPTIVE_KL clamped to the rate (the normaliser moves after the update, the
+    rate never moves); NONE and ADAPTIVE_KL pass through; anything else is named."""
+    from fabrax.rl.train import brax_kwargs, ppo_config
+
+    fixed = brax_kwargs(ppo_config({}))
+    assert fixed["learning_rate_schedule"] == "ADAPTIVE_KL"
+    assert fixed["learning_rate_schedule_min_lr"] == fixed["learning_rate_schedule_max_lr"] == fixed["learning_rate"]
+    assert "num_timesteps" not in fixed
+    none = brax_kwargs(ppo_config({"learning_rate_schedule": "NONE"}))
+    assert none["learning_rate_schedule"] == "NONE" and "learning_rate_schedule_min_lr" not in none
+    with pytest.raises(ValueError, match="ppo.learning_rate_schedule must be one of FIXED, NONE, ADAPTIVE_KL, got 'COSINE'"):
+        ppo_config({"learning_rate_schedule": "COSINE"})

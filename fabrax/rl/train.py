@@ -60,23 +60,38 @@ class PPOConfig:
     reward_scaling: float = 1.0
     max_grad_norm: float | None = 1.0
     normalize_observations: bool = True
-    # ADAPTIVE_KL: rl-games' adaptive schedule, as IsaacGym's PPO configs run it (the rate shrinks
-    # by 1.5 while the KL exceeds twice desired_kl and grows below half); brax then also moves the
-    # observation normaliser after the update. NONE (a fixed rate): brax moves the normaliser
-    # before the update, so the update's log-probabilities disagree with the rollout's while the
-    # statistics move, and the early KL is large (docs/results.md, "PPO's KL").
-    learning_rate_schedule: str = "ADAPTIVE_KL"
+    # FIXED: a fixed rate, the observation normaliser moved after each update. NONE: brax's own
+    # fixed rate, which moves the normaliser *before* the update, so the update re-scores the
+    # rollout's actions on other inputs while the statistics move (a large early KL). ADAPTIVE_KL:
+    # rl-games' schedule (the rate divided by 1.5 while the KL exceeds twice desired_kl, times 1.5
+    # below half), normaliser after the update. docs/results.md, "PPO's KL", compares them.
+    learning_rate_schedule: str = "FIXED"
     desired_kl: float = 0.008
     num_evals: int = 10
     num_eval_envs: int = 64
     seed: int = 0
 
 
+SCHEDULES = ("FIXED", "NONE", "ADAPTIVE_KL")
+
+
+def brax_kwargs(p: PPOConfig) -> dict[str, Any]:
+    """`brax.training.agents.ppo.train`'s keyword arguments for `p` (all but num_timesteps). FIXED
+    is brax's ADAPTIVE_KL with the rate clamped to `learning_rate`: the rate never moves, and brax
+    updates the normaliser after the step as it does for its adaptive schedule."""
+    kwargs = {k: v for k, v in dataclasses.asdict(p).items() if k != "num_timesteps"}
+    if p.learning_rate_schedule == "FIXED":
+        kwargs.update(
+            learning_rate_schedule="ADAPTIVE_KL", learning_rate_schedule_min_lr=p.learning_rate, learning_rate_schedule_max_lr=p.learning_rate
+        )
+    return kwargs
+
+
 def ppo_config(cfg: dict | None) -> PPOConfig:
     """A `PPOConfig` from a mapping (the `ppo` section), its ranges and batch shapes checked."""
     p = from_mapping(PPOConfig, cfg, "ppo")
-    if p.learning_rate_schedule not in ("NONE", "ADAPTIVE_KL"):
-        raise ValueError(f"ppo.learning_rate_schedule must be NONE or ADAPTIVE_KL, got {p.learning_rate_schedule!r}")
+    if p.learning_rate_schedule not in SCHEDULES:
+        raise ValueError(f"ppo.learning_rate_schedule must be one of {', '.join(SCHEDULES)}, got {p.learning_rate_schedule!r}")
     for f in dataclasses.fields(PPOConfig):
         v = getattr(p, f.name)
         if isinstance(v, bool) or v is None:
@@ -264,7 +279,7 @@ def train(settings: dict[str, Any], run_dir: str | Path, resume: bool = False, d
         cfg = ppo_checkpoint.network_config(obs_size, env.action_size, p.normalize_observations, factory)
         ppo_checkpoint.save(ckpt_dir, offset + int(step), params, cfg)
 
-    kwargs = {k: v for k, v in dataclasses.asdict(p).items() if k != "num_timesteps"}
+    kwargs = brax_kwargs(p)
     # brax logs every metric after each training iteration (about 20 lines, through the root logger
     # from brax/training/logger.py, and absl at INFO); progress.jsonl and the lines above carry them,
     # so while it trains the console keeps brax's warnings only
