@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from fabrax.bench.collect import write_report
+
 ARMS = ("panda", "ur5", "xarm7", "kinova")
 METHODS = ("gf", "gfcs")
 CLASSES = ("table_pick", "table_under_pick", "box", "bookshelf", "cage")
@@ -95,14 +97,9 @@ def main(argv: list[str] | None = None) -> int:
             rows = [r for r in res["rows"] if r["method"] == method]
             table.setdefault(arm, {})[method] = {"all": summarise(rows), **{c: summarise([r for r in rows if r["class"] == c]) for c in CLASSES}}
             meta[f"{arm}/{method}"] = {k: res["meta"].get(k) for k in ("config", "machine", "versions", "source", "wall_s")}
-    args.out.parent.mkdir(parents=True, exist_ok=True)
     order = [a for a in ARMS if a in table] + [a for a in table if a not in ARMS]
     result = {"table": {a: table[a] for a in order}, "runs": meta}
-    args.out.with_suffix(".json").write_text(json.dumps(result, indent=1))
-    text = markdown(result)
-    args.out.with_suffix(".md").write_text(text)
-    print(text)
-    print(f"wrote {args.out.with_suffix('.md')} and {args.out.with_suffix('.json')}")
+    write_report(args.out, result, markdown(result))
     return 0
 
 

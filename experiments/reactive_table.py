@@ -15,6 +15,8 @@ import argparse
 import json
 from pathlib import Path
 
+from fabrax.bench.collect import write_report
+
 CLASSES = ("table_under_pick", "box", "bookshelf_tall", "cage", "bookshelf_thin", "bookshelf_small")
 
 
@@ -79,12 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("docs/results/reactive"))
     args = parser.parse_args(argv)
     result = collect(args.runs)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.with_suffix(".json").write_text(json.dumps(result, indent=1))
-    text = markdown(result)
-    args.out.with_suffix(".md").write_text(text)
-    print(text)
-    print(f"wrote {args.out.with_suffix('.md')} and {args.out.with_suffix('.json')}")
+    write_report(args.out, result, markdown(result))
     return 0
 
 

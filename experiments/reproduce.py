@@ -58,36 +58,41 @@ MBM_ROWS = {  # row label in the table -> method label in the JSON (experiments/
 }
 
 
-def mbm_success(result: dict) -> str:
-    classes = result["classes"]
-    lines = ["| method | " + " | ".join(MBM_CLASSES) + " |", "|---|" + "---:|" * len(MBM_CLASSES)]
+def _mbm_rows(result: dict, cell) -> list[str]:
+    """One line per method of MBM_ROWS that ran, `cell(entry)` per class ('–' where it did not)."""
+    classes, lines = result["classes"], []
     for label, name in MBM_ROWS.items():
         entries = [classes.get(c, {}).get(name) for c in MBM_CLASSES]
-        if all(e is None for e in entries):
-            continue
-        cell = lambda e: "–" if e is None or e["success_pct"] is None else f"{e['success_pct']:.0f} ({e['collision_pct']:.0f})"  # noqa: E731
-        lines.append(f"| {label} | " + " | ".join(cell(e) for e in entries) + " |")
+        if any(e is not None for e in entries):
+            lines.append((name, f"| {label} | " + " | ".join("–" if e is None else cell(e) for e in entries) + " |"))
+    return lines
+
+
+def _header(first: str) -> list[str]:
+    return ["| " + first + " | " + " | ".join(MBM_CLASSES) + " |", "|---|" + "---:|" * len(MBM_CLASSES)]
+
+
+def _paper(label: str, row) -> str:
+    return f"| {label} | " + " | ".join(f"*{v}*" for v in row) + " |"
+
+
+def mbm_success(result: dict) -> str:
+    """Success % (collision %) per class, the paper's Table I rows beside them."""
+    cell = lambda e: "–" if e["success_pct"] is None else f"{e['success_pct']:.0f} ({e['collision_pct']:.0f})"  # noqa: E731
+    lines = _header("method")
+    for name, line in _mbm_rows(result, cell):
+        lines.append(line)
         if name == "gf_joint":
-            for paper, row in PAPER_TABLE_I.items():
-                if "GF*" in paper:
-                    lines.append(f"| {paper} | " + " | ".join(f"*{v}*" for v in row) + " |")
-    for paper, row in PAPER_TABLE_I.items():
-        if "GFCS" in paper:
-            lines.append(f"| {paper} | " + " | ".join(f"*{v}*" for v in row) + " |")
+            lines += [_paper(p, row) for p, row in PAPER_TABLE_I.items() if "GF*" in p]
+    lines += [_paper(p, row) for p, row in PAPER_TABLE_I.items() if "GFCS" in p]
     return "\n".join(lines) + "\n"
 
 
 def mbm_detail(result: dict) -> str:
     """EE path length and planning time of the successful motions, per class, beside the paper's."""
-    classes = result["classes"]
-    lines = ["| EE length (m) / plan time (s) | " + " | ".join(MBM_CLASSES) + " |", "|---|" + "---:|" * len(MBM_CLASSES)]
-    for label, name in MBM_ROWS.items():
-        entries = [classes.get(c, {}).get(name) for c in MBM_CLASSES]
-        if all(e is None for e in entries):
-            continue
-        cell = lambda e: "–" if e is None or e["ee_length"] is None else f"{e['ee_length']['mean']:.2f} / {e['plan_time_s']['mean']:.2f}"  # noqa: E731
-        lines.append(f"| {label} | " + " | ".join(cell(e) for e in entries) + " |")
-    lines.append("| *paper GFCS, 5 batches (EE length)* | " + " | ".join(f"*{v:.2f}*" for v in PAPER_EE_LENGTH) + " |")
+    cell = lambda e: "–" if e["ee_length"] is None else f"{e['ee_length']['mean']:.2f} / {e['plan_time_s']['mean']:.2f}"  # noqa: E731
+    lines = _header("EE length (m) / plan time (s)") + [line for _, line in _mbm_rows(result, cell)]
+    lines.append(_paper("*paper GFCS, 5 batches (EE length)*", [f"{v:.2f}" for v in PAPER_EE_LENGTH]))
     return "\n".join(lines) + "\n"
 
 

@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from fabrax.bench.collect import write_report
+
 FAMILIES = ("cubby", "merged_cubby", "dresser", "tabletop")
 TYPES = ("task_oriented", "neutral_start", "neutral_goal")
 THESIS = {  # Table 4.1: success %, collision %, reaction time (s)
@@ -119,11 +121,7 @@ def main(argv=None) -> None:
     if not runs:
         raise SystemExit("table_4_1: none of the given folders holds a results.json")
     result = collect(runs)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.with_suffix(".json").write_text(json.dumps(result, indent=1))
-    text = markdown(result)
-    args.out.with_suffix(".md").write_text(text)
-    print(text)
+    write_report(args.out, result, markdown(result))
 
 
 if __name__ == "__main__":

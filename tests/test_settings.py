@@ -125,5 +125,5 @@ def test_ppo_schedules_map_to_brax_arguments():
     assert "num_timesteps" not in fixed
     none = brax_kwargs(ppo_config({"learning_rate_schedule": "NONE"}))
     assert none["learning_rate_schedule"] == "NONE" and "learning_rate_schedule_min_lr" not in none
-    with pytest.raises(ValueError, match="ppo.learning_rate_schedule must be one of FIXED, NONE, ADAPTIVE_KL, got 'COSINE'"):
+    with pytest.raises(ValueError, match=r"ppo.learning_rate_schedule must be one of \['FIXED', 'NONE', 'ADAPTIVE_KL'\], got 'COSINE'"):
         ppo_config({"learning_rate_schedule": "COSINE"})

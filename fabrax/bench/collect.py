@@ -71,6 +71,16 @@ def markdown(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def write_report(out: Path, result, text: str) -> None:
+    """A table's two files: OUT.json (the numbers and their runs' settings) and OUT.md (`text`),
+    both printed where they went; the benchmark scripts' common ending."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".json").write_text(json.dumps(result, indent=1))
+    out.with_suffix(".md").write_text(text)
+    print(text)
+    print(f"wrote {out.with_suffix('.md')} and {out.with_suffix('.json')}")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="fabrax collect", description=__doc__.splitlines()[0])
     ap.add_argument("dirs", nargs="+", type=Path, help="sweep or run directories")
@@ -82,11 +92,5 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"fabrax collect: {e}") from None
     if not rows:
         raise SystemExit(f"fabrax collect: no results.json under {', '.join(map(str, args.dirs))}")
-    table = markdown(rows)
-    print(table)
-    out = args.out or args.dirs[0] / "collected"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".md").write_text(table)
-    out.with_suffix(".json").write_text(json.dumps(rows, indent=1))
-    print(f"table: {out.with_suffix('.md')}")
+    write_report(args.out or args.dirs[0] / "collected", rows, markdown(rows))
     return 0
