@@ -1,5 +1,7 @@
 """GFCS: the command-sequence cost and the CMA-ES solver (gfcs_paper eqs. 4-8, Algorithm 1)."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -150,6 +152,24 @@ def test_learned_samples_lie_within_joint_limits(panda):
     z = learned_samples(learner, panda, jnp.zeros(10), jax.random.PRNGKey(0), 16, 2, cfg)
     q = to_commands(z, panda.lower, panda.upper)
     assert z.shape == (16, 2, 7) and bool(jnp.all((q >= panda.lower) & (q <= panda.upper)))
+
+
+def test_oversampled_warm_start_keeps_the_lowest_energy_samples(panda):
+    """warm.oversample k draws k x population SGLD particles (the same draw as a population of k x
+    population) and keeps the population lowest in the model's energy."""
+    from fabrax.planners.gfcs.selfsup import SelfSupConfig, WarmStart, learned_samples, new_learner
+
+    cfg = SelfSupConfig(hidden=32, layers=2)
+    learner = new_learner(10, 14, cfg)
+    x, key = jnp.linspace(0.0, 1.0, 10), jax.random.PRNGKey(3)
+    every = learned_samples(learner, panda, x, key, 64, 2, cfg)  # one draw of 64 = 8 x 8
+    kept = learned_samples(learner, panda, x, key, 8, 2, dataclasses.replace(cfg, warm=WarmStart(oversample=8)))
+    energy = lambda z: learner.model(jnp.broadcast_to(x, (len(z), 10)), jax.nn.sigmoid(z).reshape(len(z), 14))  # noqa: E731
+    e_all = np.sort(np.asarray(energy(every)))
+    assert kept.shape == (8, 2, 7)
+    np.testing.assert_allclose(np.sort(np.asarray(energy(kept))), e_all[:8], rtol=1e-3, atol=1e-2)
+    with pytest.raises(ValueError, match="warm.oversample must be a positive integer"):
+        WarmStart(oversample=0)
 
 
 def test_problem_encoding(panda):

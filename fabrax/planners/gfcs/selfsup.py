@@ -36,6 +36,21 @@ from fabrax.state_io import from_flat, to_flat
 
 
 @dataclasses.dataclass(frozen=True)
+class WarmStart:
+    """How the trained model warm-starts CMA-ES (gfcs_paper §IV-B: SGLD particles from uniform
+    starts). `sgld` None runs the training negatives' SGLD; `oversample` k > 1 draws k x population
+    particles and keeps the population lowest in energy, the model's own ranking of its samples
+    (the paper's "candidate solution with the lowest cost" read as the lowest energy)."""
+
+    sgld: SGLDConfig | None = None
+    oversample: int = 1
+
+    def __post_init__(self):
+        if not isinstance(self.oversample, int) or self.oversample < 1:
+            raise ValueError(f"warm.oversample must be a positive integer, got {self.oversample!r}")
+
+
+@dataclasses.dataclass(frozen=True)
 class SelfSupConfig:
     buffer_size: int = 200
     top_m: int = 4
@@ -51,6 +66,7 @@ class SelfSupConfig:
     seed: int = 0
     latent: int | None = None  # compress d_E to this many numbers with an autoencoder (None: use d_E as is)
     ae_steps: int = 500
+    warm: WarmStart = WarmStart()
 
 
 @dataclasses.dataclass
@@ -159,8 +175,13 @@ def load_run(run_dir: str | Path, run_cfg: dict, robot, n_commands: int) -> tupl
 
 
 def learned_samples(learner: Learner, robot, context: jax.Array, key: jax.Array, population: int, n_commands: int, cfg: SelfSupConfig):
-    """Warm-start candidates from SGLD on the energy model, in the solver's unconstrained space."""
-    u = sgld(learner.model, context, key, population, cfg.sgld).reshape(population, n_commands, robot.dof)
+    """Warm-start candidates from SGLD on the energy model (`cfg.warm`), in the solver's unconstrained space."""
+    warm = cfg.warm
+    u = sgld(learner.model, context, key, population * warm.oversample, warm.sgld or cfg.sgld)
+    if warm.oversample > 1:
+        energy = learner.model(jnp.broadcast_to(context, (len(u), context.shape[-1])), u)
+        u = u[jnp.argsort(energy)[:population]]
+    u = u.reshape(population, n_commands, robot.dof)
     return to_unconstrained(robot.lower + u * (robot.upper - robot.lower), robot.lower, robot.upper, eps=1e-3)
 
 
