@@ -112,6 +112,25 @@ def _toy_data(n, key):
     return x, y
 
 
+def test_energy_model_is_the_mlp_on_concatenated_context_and_target():
+    """The split first layer (context share computed once) is the paper's MLP on concat(x, y)."""
+    from flax import nnx
+
+    from fabrax.planners.gfcs.ebm import EnergyModel
+
+    model = EnergyModel(5, 3, hidden=16, layers=3, rngs=nnx.Rngs(1))
+    x, y = jax.random.normal(jax.random.PRNGKey(0), (6, 5)), jax.random.uniform(jax.random.PRNGKey(1), (6, 3))
+    h = jnp.concatenate([x, y], -1)
+    for layer in model.hidden:
+        h = jax.nn.relu(h @ layer.kernel[...] + layer.bias[...])
+    ref = (h @ model.out.kernel[...] + model.out.bias[...])[:, 0]
+    np.testing.assert_allclose(np.asarray(model(x, y)), np.asarray(ref), rtol=1e-5, atol=1e-5)
+    y4 = jax.random.uniform(jax.random.PRNGKey(2), (6, 4, 3))  # one context against many targets
+    np.testing.assert_allclose(
+        np.asarray(model.given(model.context(x)[:, None], y4)), np.asarray(model(jnp.broadcast_to(x[:, None], (6, 4, 5)), y4)), rtol=1e-5, atol=1e-5
+    )
+
+
 def test_energy_model_learns_and_ranks_positives_above_sgld_negatives():
     """Trained with InfoNCE against SGLD negatives: on held-out contexts the loss against fixed SGLD
     negatives (drawn from the untrained model) falls, positives rank below them in energy, and SGLD on

@@ -30,8 +30,18 @@ class EnergyModel(nnx.Module):
         self.context_dim, self.target_dim = context_dim, target_dim
 
     def __call__(self, x: jax.Array, y: jax.Array) -> jax.Array:
-        h = jnp.concatenate([x, y], axis=-1)
-        for layer in self.hidden:
+        return self.given(self.context(x), y)
+
+    def context(self, x: jax.Array) -> jax.Array:
+        """The context's share of the first layer, W_x x + b: computed once per context, since
+        SGLD moves only y and the context (d_E, ~1,900 numbers) dwarfs the target (n dof)."""
+        first = self.hidden[0]
+        return x @ first.kernel[: self.context_dim] + first.bias
+
+    def given(self, hx: jax.Array, y: jax.Array) -> jax.Array:
+        """E(x, y) from `context(x)` (broadcast against y's batch axes): the MLP on concat(x, y)."""
+        h = jax.nn.relu(hx + y @ self.hidden[0].kernel[self.context_dim :])
+        for layer in self.hidden[1:]:
             h = jax.nn.relu(layer(h))
         return self.out(h)[..., 0]
 
@@ -47,7 +57,8 @@ def sgld(model: EnergyModel, x: jax.Array, key: jax.Array, n: int, cfg: SGLDConf
     """n samples y (n, target_dim) in [0, 1] for one context x (context_dim,)."""
     k0, key = jax.random.split(key)
     y0 = jax.random.uniform(k0, (n, model.target_dim))
-    grad = jax.grad(lambda y: jnp.sum(model(jnp.broadcast_to(x, (y.shape[0], x.shape[-1])), y)))
+    hx = model.context(x)
+    grad = jax.grad(lambda y: jnp.sum(model.given(hx, y)))
 
     def body(y, kk):
         k, sub = kk
@@ -62,8 +73,9 @@ def sgld(model: EnergyModel, x: jax.Array, key: jax.Array, n: int, cfg: SGLDConf
 
 def info_nce(model: EnergyModel, x: jax.Array, y_pos: jax.Array, y_neg: jax.Array) -> jax.Array:
     """Mean InfoNCE loss (eq. 9): x (B, C), y_pos (B, D), y_neg (B, N_neg, D)."""
-    e_pos = model(x, y_pos)
-    e_neg = model(jnp.broadcast_to(x[:, None], (*y_neg.shape[:2], x.shape[-1])), y_neg)
+    hx = model.context(x)
+    e_pos = model.given(hx, y_pos)
+    e_neg = model.given(hx[:, None], y_neg)
     logits = -jnp.concatenate([e_pos[:, None], e_neg], axis=1)
     return jnp.mean(optax.softmax_cross_entropy_with_integer_labels(logits, jnp.zeros(len(x), jnp.int32)))
 
