@@ -79,6 +79,32 @@ def test_cma_es_best_so_far_improves(fabric_params):
         solve(fabric, params, _problem(goal), jax.random.PRNGKey(0), cfg, samples=jnp.zeros((3, 1, 7)))
 
 
+def test_pose_goal_gfcs_ends_at_the_pose_without_ik(fabric_params, panda):
+    """goal="pose": a problem given only a hand pose (behind a wall) is solved without a joint goal;
+    the final state meets the pose test, the reported cost is the candidate's, and goal="joint"
+    refuses the same problem before any work."""
+    fabric, params = fabric_params
+    q_goal = jnp.asarray([1.2, 0.3, 0.2, -1.6, 0.1, 1.9, 0.8])
+    pose = frame_pose(panda, q_goal, fabric.goal_frame)
+    wall = {"type": "cuboid", "center": [0.45, 0.3, 0.45], "size": [0.12, 0.12, 0.3]}
+    scene = from_dict({"obstacles": [wall]}, {"cuboids": 2})
+    goal_pose = (np.asarray(pose.translation()), np.asarray(pose.rotation().wxyz))
+    problem = ProblemBatch.of(Problem(np.asarray(READY), scene, goal_pose=goal_pose), scene.capacity)
+    cfg = GFCSConfig(population=12, batches=2, t_max=3.0, goal="pose")
+    r = solve(fabric, params, problem, jax.random.PRNGKey(1), cfg)
+    assert r.best_cost < cfg.penalty and bool(r.trajectory.reached)
+    q_end = jnp.asarray(r.trajectory.q[int(r.trajectory.length) - 1])
+    end = frame_pose(panda, q_end, fabric.goal_frame)
+    assert float(jnp.linalg.norm(end.translation() - pose.translation())) <= fabric.position_tolerance + 1e-6
+    kw = dict(steps=cfg.steps, patience=cfg.patience, via_tolerance=cfg.via_tolerance, length_weight=cfg.length_weight, goal="pose")
+    cost, _ = sequence_cost(fabric, params, problem, jnp.asarray(r.best_z), **kw)
+    assert float(cost) == pytest.approx(r.best_cost, rel=1e-5)
+    with pytest.raises(ValueError, match="goal=joint needs joint goals"):
+        solve(fabric, params, problem, jax.random.PRNGKey(1), dataclasses.replace(cfg, goal="joint"))
+    with pytest.raises(ValueError, match="goal must be one of"):
+        GFCSConfig(goal="hand")
+
+
 def test_solve_batch_equals_solve_per_problem(fabric_params):
     """Problems solved together (one rollout call and one vmapped CMA-ES update per batch for all of
     them) give each problem what `solve` gives it alone with its key: the first batch's costs and the

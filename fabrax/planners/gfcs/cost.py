@@ -11,6 +11,11 @@ it is within epsilon or t_max has passed (eqs. 1-3, 5-7), and
 so a colliding candidate never beats a clean one. L_ee is the path length of the
 fabric's goal frame (the paper's "EE length" metric, §IV); w = 0 is eq. 4.
 
+goal="pose" keeps eqs. 4-8 but makes command n+1 a pose goal: the last segment aims the
+end-effector attractor at the goal pose (a joint goal held as the null-space posture where the
+problem has one, as the pure fabric `gf` does) and ends at the pose test, so problems given
+only a hand pose (MotionPolicyNetworks) need no inverse kinematics.
+
 A problem is a `fabrax.problems.ProblemBatch` with joint goals (`ProblemBatch.of(problem)` for one,
 `ProblemBatch.stack` for several): its start state, joint goal and scene.
 """
@@ -26,7 +31,8 @@ from fabrax.robot import points
 from fabrax.rollout.rollout import rollout_population
 from fabrax.rollout.trajectory import Trajectory
 
-MIN_PROGRESS = 0.01  # rad: what counts as getting closer to a command (see `population_cost`'s patience)
+MIN_PROGRESS = 0.01  # rad (m toward a pose goal): what counts as getting closer to a command (`population_cost`'s patience)
+GOALS = ("joint", "pose")
 
 
 def to_commands(z: jax.Array, lower: jax.Array, upper: jax.Array) -> jax.Array:
@@ -55,6 +61,7 @@ def population_cost(
     via_tolerance: float | None = None,
     final_pose: bool = True,
     length_weight: float = 0.0,
+    goal: str = "joint",
 ) -> tuple[jax.Array, Trajectory]:
     """GFCOP costs of candidates zs (P, n, dof) and their trajectories, rolled out together.
 
@@ -67,14 +74,21 @@ def population_cost(
     final_pose: the last segment also attracts the hand to its pose at the goal
     (`ArmFabric.with_joint_goal(pose=True)`); the goal test stays the joint tolerance.
     length_weight: s per metre of goal-frame path added to the cost (0: the paper's time-only cost).
+    goal: "joint" (eq. 6: the last command is the joint goal) or "pose" (the last segment aims the
+    hand at the goal pose and ends at the pose test; see the module docstring).
     """
+    if goal not in GOALS:
+        raise ValueError(f"goal must be one of {GOALS}, got {goal!r}")
     robot = fabric.robot
     commands = to_commands(zs, robot.lower, robot.upper)
     goals = jnp.concatenate([commands, jnp.broadcast_to(problem.goal_q, (zs.shape[0], 1, robot.dof))], axis=1)
-    final = fabric.with_joint_goal(params, problem.goal_q, pose=final_pose)
+    if goal == "pose":
+        final = fabric.with_goal(params, problem.joint_goal, problem.goal_q, problem.goal_pos, problem.goal_quat, aim="pose")
+    else:
+        final = fabric.with_joint_goal(params, problem.goal_q, pose=final_pose)
     params_seqs = jax.vmap(jax.vmap(lambda g: fabric.with_joint_goal(params, g)))(goals)
     params_seqs = jax.tree.map(lambda a, f: a.at[:, -1].set(f), params_seqs, final)
-    wait = None if patience is None else (lambda p, q: jnp.linalg.norm(q - p["goal"]["target"]), patience, MIN_PROGRESS)
+    wait = None if patience is None else (_pose_or_joint_error(fabric) if goal == "pose" else _joint_error, patience, MIN_PROGRESS)
     via = None if via_tolerance is None else lambda p, q, qd: fabric.joint_reached(p, q, qd, via_tolerance)
     trajs = rollout_population(
         fabric,
@@ -82,7 +96,7 @@ def population_cost(
         problem.scene,
         problem.start_q,
         problem.start_qd,
-        fabric.joint_reached,
+        fabric.reached if goal == "pose" else fabric.joint_reached,
         enough=enough,
         patience=wait,
         via=via,
@@ -94,6 +108,21 @@ def population_cost(
     if length_weight:
         costs = costs + length_weight * ee_length(fabric, trajs.q)
     return costs, trajs
+
+
+def _joint_error(p, q):
+    return jnp.linalg.norm(q - p["goal"]["target"])
+
+
+def _pose_or_joint_error(fabric):
+    """Progress toward a segment's aim: joint distance toward a command, the hand's distance (m)
+    toward a pose goal (the segment whose joint attractor is off)."""
+
+    def error(p, q):
+        joint, pos, _ = fabric.goal_errors(p, q)
+        return jnp.where(p["goal"]["weight"] > 0.5, joint, pos)
+
+    return error
 
 
 def ee_length(fabric, qs: jax.Array) -> jax.Array:

@@ -20,7 +20,7 @@ from evosax.algorithms import CMA_ES
 
 from fabrax.compiled import Compiled, run
 from fabrax.fabrics.fabric import Params
-from fabrax.planners.gfcs.cost import population_cost, to_commands, to_unconstrained
+from fabrax.planners.gfcs.cost import GOALS, population_cost, to_commands, to_unconstrained
 from fabrax.problems.problem import ProblemBatch
 from fabrax.rollout.trajectory import Trajectory
 
@@ -46,6 +46,11 @@ class GFCSConfig:
     final_pose: bool = True  # the goal segment also attracts the hand to its pose at the goal (`population_cost`)
     length_weight: float = 1.0  # s per metre of goal-frame path added to the cost (0: gfcs_paper eq. 4)
     direct: bool = True  # the first batch's first candidate commands the start: the fabric aimed straight at the goal
+    goal: str = "joint"  # "pose": the last segment aims the hand at the goal pose (pose goals need no IK; `population_cost`)
+
+    def __post_init__(self):
+        if self.goal not in GOALS:
+            raise ValueError(f"GFCS goal must be one of {GOALS}, got {self.goal!r}")
 
     @property
     def enough(self) -> int | None:
@@ -89,6 +94,7 @@ def _evaluate(fabric, params: Params, problem: ProblemBatch, pop: jax.Array, cfg
         via_tolerance=cfg.via_tolerance,
         final_pose=cfg.final_pose,
         length_weight=cfg.length_weight,
+        goal=cfg.goal,
     )
     k = jnp.argmin(costs)
     return costs, jax.tree.map(lambda a: a[k], trajs)
@@ -140,7 +146,7 @@ def solve(fabric, params: Params, problem: ProblemBatch, key: jax.Array, cfg: GF
     """Algorithm 1 on one problem. samples: (population, n, dof) warm-start candidates in the
     unconstrained space (default: uniform). steps_fns: reuse `make_step(...)` across problems."""
     robot = fabric.robot
-    _joint_goals(problem)
+    _check_goals(problem, cfg)
     fns = steps_fns or make_step(fabric, params, cfg)
     if fns.problems:
         raise ValueError("solve: steps_fns were made for batches of problems (make_step(problems=True)); use solve_batch")
@@ -163,7 +169,7 @@ def solve_batch(
     gives it with its key (float rounding aside). samples: (K, population, n, dof) or None (uniform).
     Per-batch wall times are the whole batch's, shared by its problems."""
     robot = fabric.robot
-    _joint_goals(problems)
+    _check_goals(problems, cfg)
     fns = steps_fns or make_step(fabric, params, cfg, problems=True)
     if not fns.problems:
         raise ValueError("solve_batch: steps_fns were made for one problem; use make_step(..., problems=True)")
@@ -181,12 +187,12 @@ def solve_batch(
     return _optimise(fns, robot, problems, samples, jnp.swapaxes(batch_keys, 0, 1), cfg, k)
 
 
-def _joint_goals(problems: ProblemBatch) -> None:
-    """GFCS commands joint configurations toward a joint goal: a pose goal fails here, before any work."""
+def _check_goals(problems: ProblemBatch, cfg: GFCSConfig) -> None:
+    """With goal="joint" the last command is the joint goal: a pose goal fails here, before any work."""
     if not isinstance(problems, ProblemBatch):
         raise ValueError(f"GFCS takes a fabrax.problems.ProblemBatch (ProblemBatch.of(problem)), got {type(problems).__name__}")
-    if not np.all(np.asarray(problems.joint_goal)):
-        raise ValueError("GFCS optimises joint-space commands toward a joint goal; a problem has a pose goal (give it an IK joint goal)")
+    if cfg.goal == "joint" and not np.all(np.asarray(problems.joint_goal)):
+        raise ValueError("GFCS with goal=joint needs joint goals; a problem has a pose goal (method.goal=pose, or give it an IK joint goal)")
 
 
 def _optimise(fns: BatchFns, robot, problem, samples, keys, cfg: GFCSConfig, k: int) -> list[GFCSResult]:
