@@ -38,11 +38,14 @@ from fabrax.state_io import from_flat, to_flat
 @dataclasses.dataclass(frozen=True)
 class WarmStart:
     """How the trained model warm-starts CMA-ES (gfcs_paper §IV-B: SGLD particles from uniform
-    starts). `sgld` None runs the training negatives' SGLD; `oversample` k > 1 draws k x population
-    particles and keeps the population lowest in energy, the model's own ranking of its samples
-    (the paper's "candidate solution with the lowest cost" read as the lowest energy)."""
+    starts, "used as solutions during inference"). The default runs 100 steps without noise, each
+    particle descending to its nearest low-energy mode (chosen on train problems the sampler did
+    not learn from; `experiments/gfcs_sampler.py`); `sgld` None runs the training negatives' SGLD.
+    `oversample` k > 1 draws k x population particles and keeps the population lowest in energy,
+    the model's own ranking of its samples (the paper's "candidate solution with the lowest cost"
+    read as the lowest energy)."""
 
-    sgld: SGLDConfig | None = None
+    sgld: SGLDConfig | None = SGLDConfig(steps=100, step=0.01, noise=0.0)
     oversample: int = 1
 
     def __post_init__(self):
