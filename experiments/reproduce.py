@@ -104,6 +104,7 @@ T41_ROWS = {  # row label -> method label in docs/results/table_4_1.json
     "RL guide, 128k env steps on MPiNets-like scenes (64 envs)": "rl_guide_mpinets",
     "RL guide, 128k env steps, in distribution (MπNets train seed)": "rl_guide_mpinets_train",
     "GFCS, 1 batch (IK joint goal)": "gfcs",
+    "GFCS, 1 batch (pose goal, no IK)": "gfcs_pose (1 b)",
     "OMPL RRTConnect, 20 s, first solution": "rrtconnect (20 s, first solution)",
     "OMPL AIT*, 20 s, first solution": "aitstar (20 s, first solution)",
 }
@@ -194,6 +195,7 @@ TABLES = {
                 f"{T41_BENCH} method=rl_guide method.name=rl_guide_mpinets_train "
                 "method.checkpoint=bench_out/rl/mpinets_train/checkpoints/000000128000 out=bench_out/t41m/rl_guide_train",
                 f'{T41_BENCH} method=gfcs method.batches=1 "method.report=[]" ik_goals=true out=bench_out/t41m/gfcs',
+                f"{T41_BENCH} method=gfcs method.goal=pose method.name=gfcs_pose out=bench_out/t41m/gfcs_pose",
                 f"{T41_BENCH} method=rrtconnect method.budget_s=20 method.first_solution=true ik_goals=true out=bench_out/t41m/rrtconnect",
                 f"{T41_BENCH} method=aitstar method.budget_s=20 method.first_solution=true ik_goals=true out=bench_out/t41m/aitstar",
                 "python experiments/table_4_1.py bench_out/t41m/* --out docs/results/table_4_1",

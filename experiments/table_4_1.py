@@ -1,6 +1,7 @@
 """Table 4.1 of fabrics_guided_rl_thesis from `fabrax bench` runs on `problems=mpinets`.
 
     python experiments/table_4_1.py bench_out/t41/* --out docs/results/table_4_1
+    python experiments/table_4_1.py bench_out/t41/gfcs_pose --out docs/results/table_4_1 --merge   # add one run
 
 One row per method: success % (collision %) per family, per problem type and over all valid
 problems, with the thesis' figures (MπNets test set, 1,800 problems) beside them, and each method's
@@ -116,11 +117,17 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="+", type=Path)
     ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--merge", action="store_true", help="add these runs' methods to an existing OUT.json, replacing same-named ones")
     args = ap.parse_args(argv)
     runs = [r for r in args.runs if (r / "results.json").exists()]
     if not runs:
         raise SystemExit("table_4_1: none of the given folders holds a results.json")
     result = collect(runs)
+    old = args.out.with_suffix(".json")
+    if args.merge and old.exists():
+        prev = json.loads(old.read_text())
+        result["methods"] = {**prev["methods"], **result["methods"]}
+        result["runs"] = {**prev["runs"], **result["runs"]}
     write_report(args.out, result, markdown(result))
 
 

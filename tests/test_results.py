@@ -53,3 +53,33 @@ def test_results_page_is_current_and_names_existing_files():
         if not any(pattern.fullmatch(str(p.relative_to(ROOT))) for p in (ROOT / "docs" / "results").rglob("*")) and not (ROOT / ref).exists():
             missing.append(ref)
     assert not missing, f"named in docs/results.md but not in the tree: {missing}"
+
+
+def test_table_4_1_merge_adds_a_run_and_keeps_the_others(tmp_path):
+    """`table_4_1.py RUN --merge` adds RUN's methods to an existing table (one new run need not
+    rerun the others) and replaces a method of the same name."""
+    import json
+
+    spec = importlib.util.spec_from_file_location("table_4_1", ROOT / "experiments" / "table_4_1.py")
+    t41 = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(t41)
+
+    def run(name: str, method: str, successes: list[bool]) -> Path:
+        rows = [
+            {"method": method, "valid_problem": True, "success": ok, "success_pose": ok, "collision": False, "class": "cubby",
+             "problem_type": "task_oriented", "plan_time_s": 0.5, "info": {}}
+            for ok in successes
+        ]  # fmt: skip
+        d = tmp_path / name
+        d.mkdir()
+        (d / "results.json").write_text(json.dumps({"meta": {"config": {"method": {"type": "gfcs", "name": method}}}, "rows": rows}))
+        return d
+
+    out = tmp_path / "table"
+    t41.main([str(run("a", "gfcs", [True, False])), "--out", str(out)])
+    t41.main([str(run("b", "gfcs_pose", [True, True, True, False])), "--out", str(out), "--merge"])
+    result = json.loads(out.with_suffix(".json").read_text())
+    assert set(result["methods"]) == {"gfcs", "gfcs_pose"} and len(result["runs"]) == 2
+    assert result["methods"]["gfcs"]["all"]["success_pct"] == 50.0 and result["methods"]["gfcs_pose"]["all"]["success_pct"] == 75.0
+    t41.main([str(run("c", "gfcs", [True])), "--out", str(out), "--merge"])
+    assert json.loads(out.with_suffix(".json").read_text())["methods"]["gfcs"]["all"]["success_pct"] == 100.0
