@@ -1,6 +1,7 @@
 """GFCS: the command-sequence cost and the CMA-ES solver (gfcs_paper eqs. 4-8, Algorithm 1)."""
 
 import dataclasses
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -389,3 +390,20 @@ def test_replan_is_warm_started_at_the_old_solution(fabric_params, panda):
     old, _ = sequence_cost(fabric, params, problem, z, **kw)
     assert r.per_batch[0]["best_cost"] <= float(old) * (1 + 1e-5)
     assert len(r.per_batch) == 1 and r.best_cost <= float(old) * (1 + 1e-5)
+
+
+def test_learned_sampler_refuses_pose_goals_before_any_work(fabric_params, panda):
+    """The sampler's context encodes the joint goal: a pose-only problem is refused by name, both by
+    the learned bench method and by Algorithm 2, before anything compiles."""
+    from fabrax.bench.methods.gfcs import GFCSMethod
+    from fabrax.planners.gfcs.selfsup import SelfSupConfig
+    from fabrax.planners.gfcs.selfsup import run as learn
+
+    fabric, params = fabric_params
+    pose = frame_pose(panda, jnp.asarray(READY), fabric.goal_frame)
+    scene = from_dict({"obstacles": []}, {"cuboids": 2})
+    p = Problem(np.asarray(READY), scene, goal_pose=(np.asarray(pose.translation()), np.asarray(pose.rotation().wxyz)), name="posed")
+    with pytest.raises(ValueError, match="posed has a pose goal"):
+        GFCSMethod(fabric, params, GFCSConfig(goal="pose"), learner=object()).solve(panda, [p])
+    with pytest.raises(ValueError, match="posed has a pose goal"):
+        learn(fabric, params, [p], GFCSConfig(), SelfSupConfig(), Path("/nonexistent/ckpt.msgpack"))

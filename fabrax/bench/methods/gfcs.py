@@ -69,6 +69,10 @@ class GFCSMethod:
         from fabrax.problems import ProblemBatch
 
         cfg = self.config or GFCSConfig()
+        if self.learner is not None:
+            from fabrax.planners.gfcs.selfsup import require_joint_goals
+
+            require_joint_goals(problems)
         together = self.batch_size > 1
         if self._steps is None:  # the runner calls solve per chunk: compile once for all of them
             self._steps = make_step(self.fabric, self.params, cfg, problems=together)

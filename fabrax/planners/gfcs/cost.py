@@ -14,7 +14,9 @@ fabric's goal frame (the paper's "EE length" metric, §IV); w = 0 is eq. 4.
 goal="pose" keeps eqs. 4-8 but makes command n+1 a pose goal: the last segment aims the
 end-effector attractor at the goal pose (a joint goal held as the null-space posture where the
 problem has one, as the pure fabric `gf` does) and ends at the pose test, so problems given
-only a hand pose (MotionPolicyNetworks) need no inverse kinematics.
+only a hand pose (MotionPolicyNetworks) need no inverse kinematics. The pose test and the
+patience measure need the hand's pose at every step, one forward-kinematics pass more per step
+than the joint test.
 
 A problem is a `fabrax.problems.ProblemBatch` with joint goals (`ProblemBatch.of(problem)` for one,
 `ProblemBatch.stack` for several): its start state, joint goal and scene.

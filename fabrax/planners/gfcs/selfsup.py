@@ -177,6 +177,14 @@ def load_run(run_dir: str | Path, run_cfg: dict, robot, n_commands: int) -> tupl
     return learner, ss_cfg, enc
 
 
+def require_joint_goals(problems: list) -> None:
+    """The context x_c holds the joint goal (gfcs_paper §IV-B): a problem given only a pose has none
+    to encode, and is refused before any work (the learned sampler is for joint goals)."""
+    pose = [p.name for p in problems if p.goal_q is None]
+    if pose:
+        raise ValueError(f"the learned GFCS sampler encodes the joint goal; {pose[0]} has a pose goal (give it an IK joint goal)")
+
+
 def learned_samples(learner: Learner, robot, context: jax.Array, key: jax.Array, population: int, n_commands: int, cfg: SelfSupConfig):
     """Warm-start candidates from SGLD on the energy model (`cfg.warm`), in the solver's unconstrained space."""
     warm = cfg.warm
@@ -215,6 +223,7 @@ def run(
     """Algorithm 2 over `problems` (joint goals) for `cfg.passes` passes; resumes from `checkpoint`
     when it exists. stop_after: return after this many solves in this call (to test resumption)."""
     robot = fabric.robot
+    require_joint_goals(problems)
     gfcops = [ProblemBatch.of(p) for p in problems]
     raw = np.stack([np.asarray(encoding.context(robot, g.start_q, g.start_qd, g.goal_q, g.scene), np.float32) for g in gfcops])
     target_dim = gfcs_cfg.n_commands * robot.dof
