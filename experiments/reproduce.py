@@ -103,6 +103,7 @@ T41_ROWS = {  # row label -> method label in docs/results/table_4_1.json
     "pure fabric in the guide's env": "fabric_switch",
     "RL guide, 128k env steps on MPiNets-like scenes (64 envs)": "rl_guide_mpinets",
     "RL guide, 128k env steps, in distribution (MπNets train seed)": "rl_guide_mpinets_train",
+    "RL guide, pretrained: 333k env steps on MBM + procedural scenes": "rl_guide_pretrained",
     "GFCS, 1 batch (IK joint goal)": "gfcs",
     "GFCS, 1 batch (pose goal, no IK)": "gfcs_pose (1 b)",
     "OMPL RRTConnect, 20 s, first solution": "rrtconnect (20 s, first solution)",
@@ -188,12 +189,16 @@ TABLES = {
             (
                 "python experiments/rl.py rl=mpinets ppo.num_timesteps=192000 ppo.num_evals=4 hydra.run.dir=bench_out/rl/mpinets",
                 "python experiments/rl.py rl=mpinets_train ppo.num_timesteps=192000 ppo.num_evals=4 hydra.run.dir=bench_out/rl/mpinets_train",
+                "FABRAX_CPU_DEVICES=2 python experiments/rl.py rl=thesis env.intrinsic_weight=0 curriculum.cells=0 ppo.num_timesteps=599040 "
+                "hydra.run.dir=bench_out/rl/thesis_nointr",
+                "python experiments/ship_guide.py bench_out/rl/thesis_nointr --step 332800 --curves docs/results/rl_pretrained",
                 f"{T41_BENCH} method=gf goal.criterion=keypoints out=bench_out/t41m/gf_kp",
                 f"{T41_BENCH} method=rl_guide method.scripted=switch method.name=fabric_switch out=bench_out/t41m/fabric_switch",
                 f"{T41_BENCH} method=rl_guide method.name=rl_guide_mpinets method.checkpoint=bench_out/rl/mpinets/checkpoints/000000128000 "
                 "out=bench_out/t41m/rl_guide",
                 f"{T41_BENCH} method=rl_guide method.name=rl_guide_mpinets_train "
                 "method.checkpoint=bench_out/rl/mpinets_train/checkpoints/000000128000 out=bench_out/t41m/rl_guide_train",
+                f"{T41_BENCH} method=rl_guide method.name=rl_guide_pretrained method.checkpoint=pretrained out=bench_out/t41m/rl_guide_pretrained",
                 f'{T41_BENCH} method=gfcs method.batches=1 "method.report=[]" ik_goals=true out=bench_out/t41m/gfcs',
                 f"{T41_BENCH} method=gfcs method.goal=pose method.name=gfcs_pose out=bench_out/t41m/gfcs_pose",
                 f"{T41_BENCH} method=rrtconnect method.budget_s=20 method.first_solution=true ik_goals=true out=bench_out/t41m/rrtconnect",

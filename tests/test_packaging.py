@@ -1,4 +1,4 @@
-"""The installed package carries everything its entry points read: every subpackage and configs/."""
+"""The installed package carries everything its entry points read: every subpackage, configs/ and the pretrained guide."""
 
 import subprocess
 import sys
@@ -29,6 +29,8 @@ def test_the_wheel_carries_the_configs_and_finds_them(tmp_path):
     shipped = {n for n in zipfile.ZipFile(wheel).namelist() if n.startswith("fabrax/configs/")}
     ours = {"fabrax/configs/" + str(p.relative_to(ROOT / "configs")) for p in (ROOT / "configs").rglob("*.yaml")}
     assert ours <= shipped, sorted(ours - shipped)
+    guide = {"fabrax/rl/" + str(p.relative_to(ROOT / "fabrax/rl")) for p in (ROOT / "fabrax/rl/pretrained").rglob("*") if p.is_file()}
+    assert guide and guide <= set(zipfile.ZipFile(wheel).namelist()), sorted(guide - set(zipfile.ZipFile(wheel).namelist()))  # the pretrained guide
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
     code = "from fabrax import config; print(config.config_dir()); print(config.load('robot', 'panda')['name'])"

@@ -143,6 +143,28 @@ def test_checkpoint_holds_the_trained_parameters_and_resume_continues(run, tmp_p
     assert {r["devices"] for r in rows if r["step"] > guide.steps} == {2}
 
 
+def test_ship_guide_packs_a_checkpoint_that_loads(run, tmp_path):
+    """experiments/ship_guide.py (how the pretrained guide is made) copies one checkpoint, the
+    settings and trained.json; the copy loads with the trained parameters."""
+    from fabrax.rl.policy import load_guide
+
+    run_dir, _, params = run
+    into = tmp_path / "shipped"
+    cmd = [sys.executable, "experiments/ship_guide.py", str(run_dir), "--into", str(into), "--note", "tiny"]
+    done = subprocess.run(cmd, cwd=Path(__file__).parents[1], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    guide = load_guide(into)
+    for a, b in zip(_leaves(guide.params), _leaves(params)):
+        np.testing.assert_array_equal(a, b)
+    trained = json.loads((into / "trained.json").read_text())
+    assert trained["steps"] == guide.steps and trained["note"] == "tiny" and trained["wall_s"] > 0
+    assert len(list((into / "checkpoints").iterdir())) == 1
+    bad = subprocess.run(
+        [*cmd[:3], "--step", "7", "--into", str(tmp_path / "x")], cwd=Path(__file__).parents[1], capture_output=True, text=True, timeout=300
+    )
+    assert bad.returncode == 2 and "no checkpoint 7" in bad.stderr
+
+
 def test_bench_method_runs_a_checkpoint_and_refuses_bad_ones(run, panda, tmp_path):
     from fabrax.bench.methods.rl_guide import build as rl_guide_method
     from fabrax.bench.runner import run as bench_run

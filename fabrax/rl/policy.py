@@ -1,8 +1,9 @@
 """A trained guide from its run directory: settings, networks and the deterministic policy.
 
-`load_guide(path)` takes an experiments/rl.py run directory (its newest checkpoint) or one
-`checkpoints/<steps>/` directory, and refuses a missing or unreadable one with a one-line
-`ValueError` naming it.
+`load_guide(path)` takes an experiments/rl.py run directory (its newest checkpoint), one
+`checkpoints/<steps>/` directory, or `pretrained`: the guide that ships with fabrax
+(fabrax/rl/pretrained/panda, trained by `experiments/rl.py rl=thesis`, docs/results.md "The
+pretrained guide"). A missing or unreadable one is refused with a one-line `ValueError` naming it.
 """
 
 from __future__ import annotations
@@ -22,6 +23,19 @@ class Guide:
     params: Any  # (normaliser, policy, value) as brax saves them
     act: Callable  # act(obs) -> action: the deterministic policy on one env's observations (the env's names)
     steps: int  # env steps it was trained for
+
+
+PRETRAINED = "pretrained"
+
+
+def pretrained_dir() -> Path:
+    """The shipped guide's run directory (settings.json, trained.json, checkpoints/<steps>/)."""
+    return Path(__file__).resolve().parent / "pretrained" / "panda"
+
+
+def resolve(path: str | Path) -> Path:
+    """A guide's path: `pretrained` names the shipped guide, anything else is a path."""
+    return pretrained_dir() if str(path) == PRETRAINED else Path(path).resolve()  # orbax takes absolute paths only
 
 
 def _checkpoint_dir(path: Path) -> tuple[Path, Path]:
@@ -44,7 +58,7 @@ def load_guide(path: str | Path) -> Guide:
     from brax.training.agents.ppo import checkpoint as ppo_checkpoint
     from brax.training.agents.ppo import networks as ppo_networks
 
-    ckpt, run = _checkpoint_dir(Path(path).resolve())  # orbax takes absolute paths only
+    ckpt, run = _checkpoint_dir(resolve(path))
     settings_path = run / "settings.json"
     if not settings_path.exists():
         raise ValueError(f"{settings_path}: missing (the run's settings are needed to rebuild its environment)")

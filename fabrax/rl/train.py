@@ -42,6 +42,7 @@ from fabrax.settings import check_keys, from_mapping
 log = logging.getLogger("fabrax.rl")
 SECTIONS = ("robot", "fabric", "env", "eval_scenes", "network", "curriculum", "ppo")
 CURVES = ("success", "collision", "keypoint_distance", "unique_cells", "r_sparse", "r_intrinsic", "stage_per_step")
+PPO_CURVES = ("kl_mean", "entropy_loss")  # PPO's health (brax's training/* figures in the train rows)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -170,7 +171,8 @@ def _progress(run_dir: Path) -> list[dict]:
 
 
 def plot_curves(run_dir: Path) -> Path | None:
-    """curves.png: the held-out evaluation's and the training episodes' curves against env steps."""
+    """curves.png: the held-out evaluation's and the training episodes' curves against env steps,
+    and PPO's KL and entropy loss."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -179,12 +181,14 @@ def plot_curves(run_dir: Path) -> Path | None:
     rows = _progress(run_dir)
     if not rows:
         return None
-    fig, axes = plt.subplots(2, 4, figsize=(16, 7))
-    for ax, name in zip(axes.flat, CURVES + ("sps",)):
-        for kind, style in (("eval", "o-"), ("train", ".-")):
+    fig, axes = plt.subplots(2, 5, figsize=(20, 7))
+    for ax, name in zip(axes.flat, CURVES + ("sps",) + PPO_CURVES):
+        for kind, style, color in (("eval", "o-", "C0"), ("train", ".-", "C1")):  # train rows carry brax's training/* too
             pts = [(r["step"], r[kind][name]) for r in rows if kind in r and name in r[kind]]
             if pts:
-                ax.plot(*zip(*pts), style, label=kind, ms=3)
+                ax.plot(*zip(*pts), style, label=kind, ms=3, color=color)
+        if name == "kl_mean":
+            ax.set_yscale("log")
         ax.set_title(name)
         ax.set_xlabel("env steps")
         ax.grid(alpha=0.3)

@@ -5,7 +5,7 @@
     fabrax view results bench_out/gf bench_out/gfcs   # step through benchmark runs, methods side by side
     fabrax view skill outputs/skills/<time>          # a motion skill's geodesics, plain and reshaped by an obstacle
     fabrax view rl --policy switch                   # the RL guide's environment: one episode (random, switch, hold)
-    fabrax view rl --checkpoint outputs/rl/<time>    # a trained guide on one of its run's held-out scenes
+    fabrax view rl --checkpoint pretrained           # the shipped guide (or outputs/rl/<time>) on a held-out scene
 
 Then open http://127.0.0.1:8080 (--port, --host to change; --seconds N serves N seconds and exits).
 """
@@ -28,7 +28,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fabric", default="panda", help="fabric config in configs/fabric")
     parser.add_argument("--policy", default="random", choices=["random", "switch", "hold"], help="rl: the actions")
     parser.add_argument("--seed", type=int, default=0, help="rl: the episode's seed")
-    parser.add_argument("--checkpoint", default=None, help="rl: a trained guide (an experiments/rl.py run directory) acts instead")
+    parser.add_argument("--checkpoint", default=None, help="rl: a trained guide acts: pretrained (shipped) or an experiments/rl.py run directory")
     parser.add_argument("--seconds", type=float, default=None, help="serve this long, then exit (default: until Ctrl-C)")
     args = parser.parse_args(argv)
     if args.mode in ("results", "skill") and not args.runs:

@@ -28,10 +28,25 @@ CELLS = (90, 140, 230)
 BPS = (160, 160, 160)
 
 
+def few_scenes(env: dict, n: int = 4) -> dict:
+    """`env` with at most `n` scenes of each kind (a prefix of each held-out set): one episode is
+    shown, so the viewer builds a few scenes, not the whole evaluation pool."""
+    sc = dict(env.get("scenes") or {})
+    for key in ("generated", "procedural"):
+        if key in sc:
+            counts = dict(sc[key]) if isinstance(sc[key], dict) else {k: v for k, v in sc[key]}
+            sc[key] = {k: min(int(v), n) for k, v in counts.items()}
+    if sc.get("mpinets"):
+        sc["mpinets"] = min(int(sc["mpinets"]), n)
+    if sc.get("mbm_classes"):
+        sc["mbm_limit"] = min(int(sc.get("mbm_limit", 50)), n)
+    return {**env, "scenes": sc}
+
+
 def rl_view(viewer: Viewer, fabric_name: str = "panda", policy: str = "random", seed: int = 0, env_cfg: dict | None = None, checkpoint=None) -> dict:
     """Roll one episode out and play it back; returns what happened (steps, success, collision).
-    With `checkpoint` (an experiments/rl.py run) the trained guide acts, on a scene of its run's
-    held-out evaluation set (`eval_scenes`), with the run's fabric."""
+    With `checkpoint` (an experiments/rl.py run, or `pretrained`) the trained guide acts, on one of
+    the first scenes of its run's held-out evaluation set (`eval_scenes`), with the run's fabric."""
     act, fabric = None, fabric_name
     if checkpoint is not None:
         from fabrax.rl.policy import load_guide
@@ -39,7 +54,7 @@ def rl_view(viewer: Viewer, fabric_name: str = "panda", policy: str = "random", 
 
         guide = load_guide(checkpoint)
         act, policy, fabric = guide.act, "guide", guide.settings["fabric"]
-        env_cfg = eval_settings(guide.settings["env"], guide.settings["eval_scenes"])
+        env_cfg = few_scenes(eval_settings(guide.settings["env"], guide.settings["eval_scenes"]))
     elif policy not in POLICIES:
         raise ValueError(f"policy must be one of {POLICIES}, got '{policy}'")
     server = viewer.server
