@@ -2,8 +2,9 @@
 
 `load_guide(path)` takes an experiments/rl.py run directory (its newest checkpoint), one
 `checkpoints/<steps>/` directory, or `pretrained`: the guide that ships with fabrax
-(fabrax/rl/pretrained/panda, trained by `experiments/rl.py rl=thesis`, docs/results.md "The
-pretrained guide"). A missing or unreadable one is refused with a one-line `ValueError` naming it.
+(fabrax/rl/pretrained/panda, trained on `rl=thesis` scenes; how: its trained.json and
+docs/results.md, "The pretrained guide"). A missing or unreadable one is refused with a one-line
+`ValueError` naming it.
 """
 
 from __future__ import annotations
