@@ -130,6 +130,8 @@ def test_checkpoint_holds_the_trained_parameters_and_resume_continues(run, tmp_p
     cmd = [sys.executable, "experiments/rl.py", "rl=tiny", "resume=true", "ppo.num_timesteps=512", f"hydra.run.dir={resumed}"]
     done = subprocess.run(cmd, cwd=Path(__file__).parents[1], env=env, capture_output=True, text=True, timeout=1200)
     assert done.returncode == 0, done.stderr[-2000:]
+    console = done.stdout + done.stderr
+    assert " eval: success" in console and "kl_mean" in console and " train: " not in console  # one line per evaluation
     steps = sorted(int(p.name) for p in (resumed / "checkpoints").iterdir())
     assert steps[-1] >= 512 and steps[-1] > guide.steps
     rows = [json.loads(line) for line in (resumed / "progress.jsonl").read_text().splitlines()]

@@ -267,8 +267,11 @@ def train(settings: dict[str, Any], run_dir: str | Path, resume: bool = False, d
         with open(run_dir / "progress.jsonl", "a") as f:
             f.write(json.dumps(line) + "\n")
         shown = ", ".join(f"{k} {row[k]:.3g}" for k in CURVES if k in row)
+        if kind == "eval" and "kl_mean" in losses:
+            shown += f", kl_mean {losses['kl_mean']:.3g}"
         if shown:  # a training log before any episode finished has nothing to show
-            log.info("step %d %s: %s", line["step"], kind, shown)
+            # one console line per evaluation; the training episodes' rows stay in progress.jsonl
+            log.log(logging.INFO if kind == "eval" else logging.DEBUG, "step %d %s: %s", line["step"], kind, shown)
         if kind == "eval":
             plot_curves(run_dir)
 
