@@ -147,6 +147,24 @@ def arms_readme(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+PRETRAINED_ROWS = {  # row label -> method label in docs/results/rl_pretrained.json
+    "env's pure fabric (`fabric_switch`)": "fabric_switch",
+    "thesis rewards, 166.4k": "rl_guide_thesis",
+    "no intrinsic reward or curriculum, 166.4k": "rl_guide_thesis_nointr",
+    "same, 332.8k (shipped: `method.checkpoint=pretrained`)": "rl_guide_pretrained",
+}
+
+
+def pretrained_ablation(result: dict) -> str:
+    """The equal-budget reward ablation and the shipped guide, success % (collision %) by problem type."""
+    t41 = _script("table_4_1")
+    lines = ["| 600 test problems, success % (collision %) | task oriented | neutral start | neutral goal | all |", "|---|---:|---:|---:|---:|"]
+    for label, name in PRETRAINED_ROWS.items():
+        e = result["methods"][name]
+        lines.append(f"| {label} | " + " | ".join(t41._cell(e["type"][t]) for t in t41.TYPES) + f" | {t41._cell(e['all'])} |")
+    return "\n".join(lines) + "\n"
+
+
 # ------------------------------------------------------------------------ the registry
 
 
@@ -166,6 +184,7 @@ class Table:
 MBM_BENCH = "fabrax bench problems=mbm split=test progress=false"
 SIX = '"classes=[' + ",".join(MBM_CLASSES) + ']"'
 T41_BENCH = "fabrax bench problems=mpinets split=test progress=false"
+RL_NOINTR = "python experiments/rl.py rl=thesis env.intrinsic_weight=0 curriculum.cells=0 hydra.run.dir=bench_out/rl/thesis_nointr"
 TABLES = {
     t.name: t
     for t in (
@@ -189,9 +208,6 @@ TABLES = {
             (
                 "python experiments/rl.py rl=mpinets ppo.num_timesteps=192000 ppo.num_evals=4 hydra.run.dir=bench_out/rl/mpinets",
                 "python experiments/rl.py rl=mpinets_train ppo.num_timesteps=192000 ppo.num_evals=4 hydra.run.dir=bench_out/rl/mpinets_train",
-                "FABRAX_CPU_DEVICES=2 python experiments/rl.py rl=thesis env.intrinsic_weight=0 curriculum.cells=0 ppo.num_timesteps=599040 "
-                "hydra.run.dir=bench_out/rl/thesis_nointr",
-                "python experiments/ship_guide.py bench_out/rl/thesis_nointr --step 332800 --curves docs/results/rl_pretrained",
                 f"{T41_BENCH} method=gf goal.criterion=keypoints out=bench_out/t41m/gf_kp",
                 f"{T41_BENCH} method=rl_guide method.scripted=switch method.name=fabric_switch out=bench_out/t41m/fabric_switch",
                 f"{T41_BENCH} method=rl_guide method.name=rl_guide_mpinets method.checkpoint=bench_out/rl/mpinets/checkpoints/000000128000 "
@@ -207,6 +223,36 @@ TABLES = {
             ),
             {"main": t41_readme, "full": lambda r: _script("table_4_1").markdown(r)},
             "table_4_1",
+        ),
+        Table(
+            "The pretrained guide: the thesis' scenes, a reward ablation at equal budget (fabrics_guided_rl_thesis §3.4)",
+            (
+                "python experiments/rl.py rl=thesis hydra.run.dir=bench_out/rl/thesis",
+                RL_NOINTR,
+                f"{RL_NOINTR} resume=true ppo.num_timesteps=399360",
+                f"FABRAX_CPU_DEVICES=2 {RL_NOINTR} resume=true ppo.num_timesteps=599040",
+                "for s in 133120 166400 332800 366080 532480; do fabrax bench problems=mpinets split=test seed=20000 limit=256 solvable_s=null "
+                "progress=false method=rl_guide method.name=nointr_$s method.checkpoint=bench_out/rl/thesis_nointr/checkpoints/000000$s "
+                "out=bench_out/val/nointr_$s; done",
+                "fabrax bench problems=mpinets split=test seed=20000 limit=256 solvable_s=null progress=false method=rl_guide "
+                "method.scripted=switch method.name=fabric_switch out=bench_out/val/fabric_switch",
+                "python experiments/table_4_1.py bench_out/val/* --out docs/results/rl_pretrained/validation",
+                "python experiments/ship_guide.py bench_out/rl/thesis_nointr --step 332800 --curves docs/results/rl_pretrained "
+                '--note "resumed at 199,680 and 399,360 env steps; the checkpoint of highest validation success with no more '
+                "collisions than the env's fabric\"",
+                "mkdir -p docs/results/rl_pretrained/thesis_rewards && cd bench_out/rl/thesis && "
+                "cp progress.jsonl curves.png settings.json ../../../docs/results/rl_pretrained/thesis_rewards/",
+                f"{T41_BENCH} method=rl_guide method.scripted=switch method.name=fabric_switch out=bench_out/t41m/fabric_switch",
+                f"{T41_BENCH} method=rl_guide method.name=rl_guide_thesis method.checkpoint=bench_out/rl/thesis/checkpoints/000000166400 "
+                "out=bench_out/t41m/rl_guide_thesis",
+                f"{T41_BENCH} method=rl_guide method.name=rl_guide_thesis_nointr "
+                "method.checkpoint=bench_out/rl/thesis_nointr/checkpoints/000000166400 out=bench_out/t41m/rl_guide_thesis_nointr",
+                f"{T41_BENCH} method=rl_guide method.name=rl_guide_pretrained method.checkpoint=pretrained out=bench_out/t41m/rl_guide_pretrained",
+                "python experiments/table_4_1.py bench_out/t41m/fabric_switch bench_out/t41m/rl_guide_thesis bench_out/t41m/rl_guide_thesis_nointr "
+                "bench_out/t41m/rl_guide_pretrained --out docs/results/rl_pretrained",
+            ),
+            {"main": pretrained_ablation},
+            "rl_pretrained",
         ),
         Table(
             "GFCS reactive re-execution and warm-started re-planning (gfcs_paper §V)",

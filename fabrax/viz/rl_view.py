@@ -33,9 +33,8 @@ def few_scenes(env: dict, n: int = 4) -> dict:
     shown, so the viewer builds a few scenes, not the whole evaluation pool."""
     sc = dict(env.get("scenes") or {})
     for key in ("generated", "procedural"):
-        if key in sc:
-            counts = dict(sc[key]) if isinstance(sc[key], dict) else {k: v for k, v in sc[key]}
-            sc[key] = {k: min(int(v), n) for k, v in counts.items()}
+        if key in sc:  # a mapping, or (kind, count) pairs as settings.json stores them
+            sc[key] = {k: min(int(v), n) for k, v in dict(sc[key]).items()}
     if sc.get("mpinets"):
         sc["mpinets"] = min(int(sc["mpinets"]), n)
     if sc.get("mbm_classes"):
