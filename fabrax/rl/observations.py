@@ -12,15 +12,20 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from fabrax.scene import Scene
 from fabrax.scene.sdf import nearest_distance
 
 
-def grid_points(cells: int, low, high) -> jax.Array:
-    """(cells, cells, cells, 3) points evenly spaced from `low` to `high` inclusive (eq. 3.15), x-major."""
-    axes = [jnp.linspace(lo, hi, cells) for lo, hi in zip(low, high)]
-    return jnp.stack(jnp.meshgrid(*axes, indexing="ij"), axis=-1)
+def grid_points(cells: int, low, high) -> np.ndarray:
+    """(cells, cells, cells, 3) points evenly spaced from `low` to `high` inclusive (eq. 3.15), x-major.
+
+    A host array: inside a jitted function it is a constant. Traced (linspace and meshgrid), XLA
+    fused the grid's arithmetic into the per-(point, obstacle) distance loop of `bps_vectors`,
+    which then ran slower (experiments/bench_reaction.py times a new scene's BPS)."""
+    axes = [np.linspace(lo, hi, cells, dtype=np.float32) for lo, hi in zip(low, high)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
 
 
 def cell_centres(cells: int, low, high) -> jax.Array:

@@ -104,28 +104,33 @@ class RLGuideMethod:
         times = np.asarray(times) * 1e3
         return float(times.mean()), float(times.std())
 
-    def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]:
-
-        from fabrax.compiled import Compiled
+    def arguments(self, robot: Robot, problems: list[Problem]) -> tuple:
+        """The rollout's stacked arguments for `problems` (scene padded to the common capacity,
+        start, goal pose of the fabric's goal frame and its keypoints): every problem aimed at a
+        pose, joint goals' poses by one batched FK."""
         from fabrax.problems.problem import batch
         from fabrax.robot.kinematics import keypoints_at_pose
         from fabrax.scene import COMMON_CAPACITY
+
+        frame = self.env.fabric.goal_frame
+        b = batch([dataclasses.replace(p, scene=p.scene.pad(**COMMON_CAPACITY)) for p in problems]).with_goal_poses(robot, frame)
+        keypoints = jax.vmap(lambda x, r: keypoints_at_pose(robot, frame, x, r))(b.goal_pos, b.goal_quat)  # keypoints ride on the frame
+        return b.scene, b.start_q, b.goal_pos, b.goal_quat, keypoints
+
+    def solve(self, robot: Robot, problems: list[Problem]) -> list[Solution]:
+
+        from fabrax.compiled import Compiled
 
         env = self.env
         if robot.dof != env.robot.dof or robot.name != env.robot.name:
             raise ValueError(f"the guide was trained on robot '{env.robot.name}', the problems are posed for '{robot.name}'")
         if self._run is None:
             self._run = Compiled(jax.jit(jax.vmap(self._rollout)))
-        frame = env.fabric.goal_frame
         out: list[Solution] = []
         for first in range(0, len(problems), self.batch_size):
             chunk = problems[first : first + self.batch_size]
             size = min(self.batch_size, 1 << (len(chunk) - 1).bit_length())
-            padded = chunk + [chunk[-1]] * (size - len(chunk))
-            # every problem aimed at a pose: joint goals' poses by one batched FK
-            b = batch([dataclasses.replace(p, scene=p.scene.pad(**COMMON_CAPACITY)) for p in padded]).with_goal_poses(robot, frame)
-            keypoints = jax.vmap(lambda x, r: keypoints_at_pose(robot, frame, x, r))(b.goal_pos, b.goal_quat)  # keypoints ride on the frame
-            args = (b.scene, b.start_q, b.goal_pos, b.goal_quat, keypoints)
+            args = self.arguments(robot, chunk + [chunk[-1]] * (size - len(chunk)))
             if self._reaction_ms is None:
                 self._reaction_ms = self.reaction_ms(args)
             run, compile_s = self._run.get(*args)
