@@ -25,6 +25,8 @@ def test_the_shipped_guide_loads_and_says_how_it_was_trained(guide):
     scenes = guide.settings["env"]["scenes"]
     assert scenes["mpinets"] == 0 and not {c for c, n in scenes["procedural"] if n} & set(MPINETS_LIKE)
     assert scenes["mbm_classes"] and sum(n for _, n in scenes["generated"]) > 0  # dataset and procedural scenes
+    # trained before `network.std` existed: its settings and checkpoint read as the network's own scale output
+    assert guide.settings["network"]["std"] == "state" and "std" not in json.loads((pretrained_dir() / "settings.json").read_text())["network"]
 
 
 def test_the_shipped_guide_acts_in_the_bench(guide, panda):
@@ -55,3 +57,20 @@ def test_the_viewer_builds_a_few_of_the_guides_held_out_scenes(guide):
     few = env_config(few_scenes(full, 4)).scenes
     assert few.mpinets == min(4, full["scenes"]["mpinets"]) and (not few.mbm_classes or few.mbm_limit <= 4)
     assert all(n <= 4 for _, n in few.generated + few.procedural)
+
+
+def test_reaction_benchmark_times_every_piece(tmp_path):
+    """experiments/bench_reaction.py: each piece of the guide's reaction timed on new scenes, written as JSON."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parent.parent / "experiments" / "bench_reaction.py"
+    spec = importlib.util.spec_from_file_location("bench_reaction", path)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    assert script.main(["--out", str(tmp_path / "r"), "--calls", "3", "--scenes", "1"]) == 0
+    rows = json.loads((tmp_path / "r.json").read_text())["rows"]
+    assert set(rows) == {"static BPS", "observation", "policy", "targets + fabric step", "reaction", "pure fabric"}
+    assert all(r["mean_ms"] > 0 and r["std_ms"] >= 0 for r in rows.values())
+    with pytest.raises(SystemExit, match="--calls"):
+        script.main(["--out", str(tmp_path / "r"), "--calls", "0"])

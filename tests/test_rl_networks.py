@@ -64,8 +64,8 @@ def _head(layers, cells: int, channels: int) -> tuple[int, int]:
     return params, cells**3 * channels
 
 
-@pytest.mark.parametrize("variant", ["conv", "mlp"])
-def test_ppo_factory_shapes_and_parameter_counts_match_table_3_4(panda, variant):
+@pytest.mark.parametrize("variant,std", [("conv", "global"), ("mlp", "global"), ("conv", "state")])
+def test_ppo_factory_shapes_and_parameter_counts_match_table_3_4(panda, variant, std):
     from types import SimpleNamespace
 
     from fabrax.rl import FabricGuideEnv, env_config
@@ -74,20 +74,62 @@ def test_ppo_factory_shapes_and_parameter_counts_match_table_3_4(panda, variant)
     shapes = FabricGuideEnv.observation_size.fget(SimpleNamespace(cfg=env_config({}), robot=panda))
     sizes = {k: tuple(v) for k, v in ppo_observation(shapes).items()}
     action = 6 + panda.dof + 1
-    nets = make_guide_networks(sizes, action, variant=variant)
+    nets = make_guide_networks(sizes, action, variant=variant, std=std)
     proprio = 24 + panda.dof + 24 + 3 * panda.dof + panda.n_spheres + 1
     bps_p, bps_out = _head(BPS_HEAD, 16, 3)
     map_p, map_out = _head(MAP_HEAD, 20, 1)
     assert (bps_out, map_out) == (256, 128)  # 2^3 x 32 and 2^3 x 16 voxels
     width = 256 + (bps_out + map_out if variant == "conv" else 0)
     trunk = _dense(proprio, 256) + _dense(width, 512) + _dense(512, 256) + _dense(256, 128) + (bps_p + map_p if variant == "conv" else 0)
-    obs = {k: jnp.ones((3, 2) + s) for k, s in sizes.items()}  # PPO applies its networks to (batch, unroll, ...)
-    for net, outputs in ((nets.policy_network, 2 * action), (nets.value_network, None)):
+    obs = {k: jax.random.normal(jax.random.PRNGKey(i), (3, 2) + s) for i, (k, s) in enumerate(sizes.items())}  # PPO's (batch, unroll, ...)
+    policy_head = _dense(128, action) + action if std == "global" else _dense(128, 2 * action)  # locs and one scale each, or both per state
+    for net, outputs, head in ((nets.policy_network, 2 * action, policy_head), (nets.value_network, None, _dense(128, 1))):
         params = net.init(jax.random.PRNGKey(0))
         n = sum(x.size for x in jax.tree.leaves(params))
-        assert n == trunk + _dense(128, outputs or 1)
+        assert n == trunk + head
         out = net.apply(None, params, obs)
         assert out.shape == ((3, 2, outputs) if outputs else (3, 2))
+        if outputs:
+            locs, scales = np.asarray(out[..., :action]).reshape(6, -1), np.asarray(out[..., action:]).reshape(6, -1)
+            assert np.ptp(locs, axis=0).min() > 0  # the locs follow the state
+            if std == "global":  # one scale per action dimension, the same in every state
+                np.testing.assert_array_equal(scales, np.broadcast_to(scales[0], scales.shape))
+            else:
+                assert np.ptp(scales, axis=0).min() > 0
+
+
+def test_bounded_loc_stays_inside_its_bound_and_keeps_the_parameters(panda):
+    """`loc_bound`: the pre-tanh mean b tanh(x / b) of the unbounded network's x, scales untouched."""
+    from types import SimpleNamespace
+
+    from fabrax.rl import FabricGuideEnv, env_config
+    from fabrax.rl.networks import make_guide_networks, ppo_observation
+
+    shapes = FabricGuideEnv.observation_size.fget(SimpleNamespace(cfg=env_config({}), robot=panda))
+    sizes = {k: tuple(v) for k, v in ppo_observation(shapes).items()}
+    action = 6 + panda.dof + 1
+    free = make_guide_networks(sizes, action, variant="mlp", hidden=(16,), loc_bound=None).policy_network
+    bound = make_guide_networks(sizes, action, variant="mlp", hidden=(16,), loc_bound=2.0).policy_network
+    params = free.init(jax.random.PRNGKey(0))
+    params = jax.tree.map(lambda x: 3.0 * x, params)  # larger outputs: past the bound
+    obs = {k: jax.random.normal(jax.random.PRNGKey(i), (16,) + s) for i, (k, s) in enumerate(sizes.items())}
+    x, y = free.apply(None, params, obs), bound.apply(None, params, obs)
+    assert float(jnp.abs(x[:, :action]).max()) > 2.0 and float(jnp.abs(y[:, :action]).max()) <= 2.0
+    np.testing.assert_allclose(y[:, :action], 2.0 * jnp.tanh(x[:, :action] / 2.0), rtol=1e-6)
+    np.testing.assert_array_equal(y[:, action:], x[:, action:])
+    with pytest.raises(ValueError, match="network.loc_bound"):
+        make_guide_networks(sizes, action, loc_bound=-1.0)
+
+
+def test_unknown_std_is_refused_by_name(panda):
+    from types import SimpleNamespace
+
+    from fabrax.rl import FabricGuideEnv, env_config
+    from fabrax.rl.networks import make_guide_networks, ppo_observation
+
+    shapes = FabricGuideEnv.observation_size.fget(SimpleNamespace(cfg=env_config({}), robot=panda))
+    with pytest.raises(ValueError, match="network.std"):
+        make_guide_networks({k: tuple(v) for k, v in ppo_observation(shapes).items()}, 14, std="fixed")
 
 
 def test_normalised_observations_are_clipped_so_a_constant_feature_cannot_explode(panda):

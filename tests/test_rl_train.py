@@ -256,3 +256,23 @@ def test_training_keeps_brax_metric_dumps_off_the_console(run):
     dump = logging.LogRecord("root", logging.INFO, "/env/site-packages/brax/training/logger.py", 85, "Steps Env: 128", None, None)
     ours = logging.LogRecord("fabrax.rl", logging.INFO, "/src/fabrax/rl/train.py", 240, "step 128 train", None, None)
     assert not _not_brax_metrics(dump) and _not_brax_metrics(ours)
+
+
+def test_spread_script_reads_the_action_distribution_of_checkpoints(run, tmp_path):
+    """experiments/rl_spread.py on the tiny run: scales per dimension, and zero KL from a checkpoint to itself."""
+    import importlib.util
+
+    from fabrax.rl.train import latest_checkpoint
+
+    run_dir, _, _ = run
+    step = int(latest_checkpoint(run_dir).name)
+    spec = importlib.util.spec_from_file_location("rl_spread", Path(__file__).resolve().parents[1] / "experiments" / "rl_spread.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    out = tmp_path / "spread"
+    assert script.main([str(run_dir), str(step), str(step), "--out", str(out), "--envs", "4", "--steps-per-env", "2"]) == 0
+    result = json.loads(out.with_suffix(".json").read_text())
+    assert result["states"] == 8 and result["std"] == "global"
+    (row, _), (pair,) = result["checkpoints"], result["kl"]
+    assert len(row["scale_min"]) == 6 + 7 + 1 and all(0.001 <= s <= m for s, m in zip(row["scale_min"], row["scale_median"]))
+    assert abs(pair["max"]) < 1e-3  # KL of a distribution with itself (brax adds 1e-5 inside its log)

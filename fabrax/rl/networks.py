@@ -5,6 +5,16 @@ head: (4 k4 s2, 8 k3 s2, 16 k3 s1); proprioception: one dense layer of 256, ELU;
 concatenation: an MLP 512-256-128 with ELU, then the output layer. `variant="mlp"` drops both
 convolutional heads (the ablation of Table 4.2 without the BPS and map encoders).
 
+The actor's Gaussian (brax's tanh-squashed normal) has one learned scale per action dimension,
+shared by every state (`std="global"`), as rl-games' `fixed_sigma` (the thesis' PPO) and brax's
+own PPO networks have it, and a pre-tanh mean bounded softly to +-`loc_bound`, b tanh(x / b) of the
+network's output x (slope 1 at 0, so the bound leaves small means' updates as they were; brax's
+`mean_clip_scale` bounds with slope b; rl-games keeps its means in bounds with a loss). A scale output per state
+(`std="state"`, how earlier guides were trained) can collapse to the distribution's floor (0.001)
+on a few states; an unbounded mean drifts far past tanh's range, where moving it changes no action.
+In both cases PPO's KL between successive policies (brax's, on the pre-tanh Gaussians) is dominated
+by states whose squashed actions barely moved, and the clipped objective does not hold them back.
+
 XLA's CPU convolution, and its gradient above all, is slow; `Conv3D` therefore gathers each output
 voxel's k^3 input patch with strided slices and applies the kernel as one 2-D matrix product, the
 same linear map as `lax.conv_general_dilated` with VALID padding (tested against it). Dense layers
@@ -95,6 +105,27 @@ class GuideNetwork(nn.Module):
         return nn.Dense(self.outputs)(x)
 
 
+STDS = ("global", "state")
+# what a checkpoint or settings.json without these network keys was trained with
+LEGACY = {"std": "state", "loc_bound": None}
+
+
+class GuidePolicy(nn.Module):
+    """The actor with one learned, state-independent pre-softplus scale per action dimension
+    (`std="global"`): outputs (B, 2 x actions), locs then scales, as brax's tanh-Gaussian reads them.
+    The scale parameter starts at 0, the scale a zero network output gives (softplus(0) = 0.69)."""
+
+    actions: int
+    variant: str = "conv"
+    hidden: Sequence[int] = (512, 256, 128)
+
+    @nn.compact
+    def __call__(self, obs: dict[str, jax.Array]) -> jax.Array:
+        loc = GuideNetwork(self.actions, self.variant, self.hidden)(obs)
+        scale = self.param("std", nn.initializers.zeros, (self.actions,))
+        return jnp.concatenate([loc, jnp.broadcast_to(scale, loc.shape)], axis=-1)
+
+
 def ppo_observation(obs: dict[str, jax.Array]) -> dict[str, jax.Array]:
     """The env's observations as PPO sees them: the grids renamed "pixels/<name>" (brax's running
     normaliser needs inputs of one rank and skips "pixels/" keys; the grids stay unnormalised)."""
@@ -124,11 +155,16 @@ def make_guide_networks(
     preprocess_observations_fn=None,
     variant: str = "conv",
     hidden: Sequence[int] = (512, 256, 128),
+    std: str = "global",
+    loc_bound: float | None = 3.0,
 ):
     """brax `network_factory` for `ppo.train`: actor and critic are each a `GuideNetwork` (Table
     3.4; separate parameters), the actor's outputs the mean and scale of brax's tanh-squashed
-    Gaussian over the action box [-1, 1]. `preprocess_observations_fn` is brax's normaliser
-    (identity by default); `variant` and `hidden` are plain values, so brax's checkpoints record them."""
+    Gaussian over the action box [-1, 1], the scale one learned value per action dimension
+    (`std="global"`, `GuidePolicy`) or an output of the network (`std="state"`).
+    `loc_bound` bounds the Gaussian's pre-tanh mean softly to (-loc_bound, loc_bound) (None: unbounded).
+    `preprocess_observations_fn` is brax's normaliser (identity by default); `variant`, `hidden`,
+    `std` and `loc_bound` are plain values, so brax's checkpoints record them."""
     from brax.training import distribution, networks, types
     from brax.training.acme import running_statistics
     from brax.training.agents.ppo.networks import PPONetworks
@@ -138,21 +174,29 @@ def make_guide_networks(
         preprocess = functools.partial(running_statistics.normalize, max_abs_value=OBS_CLIP)
     if not isinstance(observation_size, dict) or "q" not in observation_size or "pixels/bps" not in observation_size:
         raise ValueError("the guide's networks need the environment's dict observations as `ppo_observation` names them")
+    if std not in STDS:
+        raise ValueError(f"network.std must be one of {', '.join(STDS)}, got {std!r}")
+    if loc_bound is not None and not (isinstance(loc_bound, (int, float)) and not isinstance(loc_bound, bool) and loc_bound > 0):
+        raise ValueError(f"network.loc_bound must be a positive number or null, got {loc_bound!r}")
     shapes = {k.removeprefix("pixels/"): tuple(v) for k, v in observation_size.items()}
     dist = distribution.NormalTanhDistribution(event_size=action_size)
     hidden = tuple(int(h) for h in hidden)  # a checkpoint's JSON gives a list
 
-    def network(outputs: int):
-        module = GuideNetwork(outputs, variant=variant, hidden=hidden)
+    def network(outputs: int, actor: bool = False):
+        module = GuidePolicy(outputs // 2, variant, hidden) if actor and std == "global" else GuideNetwork(outputs, variant=variant, hidden=hidden)
         dummy = {k: jnp.zeros((1,) + s) for k, s in shapes.items()}
 
         def apply(processor_params, params, obs):
             vectors, grids = _split(obs)  # the normaliser's statistics cover the vectors only
-            return _flat_apply(module, shapes, params, {**preprocess(vectors, processor_params), **grids})
+            out = _flat_apply(module, shapes, params, {**preprocess(vectors, processor_params), **grids})
+            if actor and loc_bound is not None:  # loc = b tanh(x / b): slope 1 at 0, |loc| < b
+                loc, scale = jnp.split(out, 2, axis=-1)
+                out = jnp.concatenate([loc_bound * jnp.tanh(loc / loc_bound), scale], axis=-1)
+            return out
 
         return networks.FeedForwardNetwork(init=lambda key: module.init(key, dummy), apply=apply)
 
-    policy, value = network(dist.param_size), network(1)
+    policy, value = network(dist.param_size, actor=True), network(1)
     value_apply = value.apply
     value = networks.FeedForwardNetwork(init=value.init, apply=lambda *a: value_apply(*a)[..., 0])
     return PPONetworks(policy_network=policy, value_network=value, parametric_action_distribution=dist)

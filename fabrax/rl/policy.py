@@ -14,7 +14,7 @@ import json
 from pathlib import Path
 from typing import Any, Callable
 
-from fabrax.rl.networks import make_guide_networks, ppo_observation
+from fabrax.rl.networks import LEGACY, make_guide_networks, ppo_observation
 
 
 @dataclasses.dataclass
@@ -24,6 +24,7 @@ class Guide:
     params: Any  # (normaliser, policy, value) as brax saves them
     act: Callable  # act(obs) -> action: the deterministic policy on one env's observations (the env's names)
     steps: int  # env steps it was trained for
+    network: Any = None  # brax's PPONetworks (the action distribution: `network.parametric_action_distribution`)
 
 
 PRETRAINED = "pretrained"
@@ -53,6 +54,15 @@ def _checkpoint_dir(path: Path) -> tuple[Path, Path]:
     return ckpt, path
 
 
+def read_settings(path: str | Path) -> dict:
+    """A run's settings.json; a run recorded before `network.std` and `network.loc_bound` existed
+    had a scale output per state and an unbounded mean (`fabrax.rl.networks.LEGACY`)."""
+    settings = json.loads(Path(path).read_text())
+    if isinstance(settings.get("network"), dict):
+        settings["network"] = {**LEGACY, **settings["network"]}
+    return settings
+
+
 def load_guide(path: str | Path) -> Guide:
     import jax
     from brax.training import checkpoint as brax_checkpoint
@@ -64,8 +74,11 @@ def load_guide(path: str | Path) -> Guide:
     if not settings_path.exists():
         raise ValueError(f"{settings_path}: missing (the run's settings are needed to rebuild its environment)")
     try:
-        settings = json.loads(settings_path.read_text())
+        settings = read_settings(settings_path)
         config = ppo_checkpoint.load_config(ckpt)
+        for key, value in LEGACY.items():  # a checkpoint from before the option
+            if key not in config.network_factory_kwargs:
+                config.network_factory_kwargs[key] = value
         params = ppo_checkpoint.load(ckpt)
         network = brax_checkpoint.get_network(config, make_guide_networks)
     except Exception as e:  # orbax / json errors of a damaged checkpoint, whatever their type
@@ -78,4 +91,4 @@ def load_guide(path: str | Path) -> Guide:
         batched = jax.tree.map(lambda x: x[None], ppo_observation(obs))
         return policy(batched, key)[0][0]
 
-    return Guide(settings, ckpt, params, act, int(ckpt.name))
+    return Guide(settings, ckpt, params, act, int(ckpt.name), network)

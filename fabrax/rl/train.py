@@ -6,7 +6,9 @@
                            experiment script composes them from configs/robot and configs/fabric)
     env                    `EnvConfig` fields of the training scenes (fabrax/rl/config.py)
     eval_scenes            `env.scenes` overrides of the held-out scenes of the learning curves
-    network                variant (conv | mlp), hidden (the MLP widths of Table 3.4)
+    network                variant (conv | mlp), hidden (the MLP widths of Table 3.4), std (global:
+                           one learned action scale per dimension | state: the network's output),
+                           loc_bound (the pre-tanh mean's soft bound; null: none)
     curriculum             cells: mean unique cells per finished episode that start stage 2 (<= 0: no curriculum);
                            max_steps: env steps after which stage 2 starts at the latest (null: none)
     ppo                    `PPOConfig` fields (brax's `ppo.train` arguments)
@@ -35,7 +37,8 @@ import jax
 from fabrax.rl.config import env_config
 from fabrax.rl.env import make_env
 from fabrax.rl.memory import check_rollout_fits
-from fabrax.rl.networks import make_guide_networks, ppo_observation
+from fabrax.rl.networks import STDS, make_guide_networks, ppo_observation
+from fabrax.rl.policy import read_settings
 from fabrax.rl.wrappers import FixedStage, wrap_for_training
 from fabrax.settings import check_keys, from_mapping
 
@@ -111,10 +114,16 @@ def normalise(settings: dict[str, Any]) -> dict[str, Any]:
     check_keys(s, SECTIONS, "rl settings")
     env = _plain(dataclasses.asdict(env_config(s.get("env"))))  # every field, validated
     env_config(eval_settings(env, s.get("eval_scenes")))
-    net = {"variant": "conv", "hidden": [512, 256, 128], **dict(s.get("network") or {})}
-    check_keys(net, ("variant", "hidden"), "rl network")
+    net = {"variant": "conv", "hidden": [512, 256, 128], "std": "global", "loc_bound": 3.0, **dict(s.get("network") or {})}
+    check_keys(net, ("variant", "hidden", "std", "loc_bound"), "rl network")
     if net["variant"] not in ("conv", "mlp"):
         raise ValueError(f"network.variant must be 'conv' or 'mlp', got {net['variant']!r}")
+    if net["std"] not in STDS:
+        raise ValueError(f"network.std must be one of {', '.join(STDS)}, got {net['std']!r}")
+    bound = net["loc_bound"]
+    if bound is not None and (isinstance(bound, bool) or not isinstance(bound, (int, float)) or not bound > 0):
+        raise ValueError(f"network.loc_bound must be a positive number or null, got {bound!r}")
+    net["loc_bound"] = None if bound is None else float(bound)
     net["hidden"] = [int(h) for h in net["hidden"]]
     cur = {"cells": 0.0, "max_steps": None, **dict(s.get("curriculum") or {})}
     check_keys(cur, ("cells", "max_steps"), "rl curriculum")
@@ -219,7 +228,7 @@ def train(settings: dict[str, Any], run_dir: str | Path, resume: bool = False, d
     settings_path = run_dir / "settings.json"
     offset, restore, start_stage, wall_before, evaluated = 0, None, 1, 0.0, set()
     if settings_path.exists():
-        old = json.loads(settings_path.read_text())
+        old = read_settings(settings_path)
         diff = _differences(_comparable(old), _comparable(settings))
         if diff:
             raise ValueError(f"{run_dir}: its checkpoint was trained with other settings ({', '.join(diff)}); use a new run directory")
@@ -244,7 +253,8 @@ def train(settings: dict[str, Any], run_dir: str | Path, resume: bool = False, d
     env = make_env(settings["env"], settings["robot"], settings["fabric"], data_dir)
     check_rollout_fits(p, env.observation_size)  # a clear error now, not an allocation failure in the first compile
     eval_env = FixedStage(make_env(eval_settings(settings["env"], settings["eval_scenes"]), settings["robot"], settings["fabric"], data_dir), 2)
-    factory = functools.partial(make_guide_networks, variant=settings["network"]["variant"], hidden=tuple(settings["network"]["hidden"]))
+    net = settings["network"]
+    factory = functools.partial(make_guide_networks, variant=net["variant"], hidden=tuple(net["hidden"]), std=net["std"], loc_bound=net["loc_bound"])
     cur = settings["curriculum"]
     per_device = None if cur["max_steps"] is None else cur["max_steps"] / jax.local_device_count()
     wrap = functools.partial(wrap_for_training, cells=cur["cells"], start_stage=start_stage, max_steps=per_device)
