@@ -149,9 +149,13 @@ def arms_readme(result: dict) -> str:
 
 PRETRAINED_ROWS = {  # row label -> method label in docs/results/rl_pretrained.json
     "env's pure fabric (`fabric_switch`)": "fabric_switch",
-    "thesis rewards, 166.4k": "rl_guide_thesis",
-    "no intrinsic reward or curriculum, 166.4k": "rl_guide_thesis_nointr",
+    "thesis rewards (intrinsic + curriculum), 166.4k": "rl_guide_thesis",
+    "intrinsic reward only, 166.4k": "rl_guide_thesis_intr",
+    "curriculum only, 166.4k": "rl_guide_thesis_curr",
+    "neither, 166.4k": "rl_guide_thesis_nointr",
     "same, 332.8k (shipped: `method.checkpoint=pretrained`)": "rl_guide_pretrained",
+    "neither, one action scale for all states, 166.4k": "rl_guide_thesis_nointr_gstd",
+    "same, and a bounded mean (today's defaults), 166.4k": "rl_guide_thesis_nointr_bounded",
 }
 
 
@@ -181,10 +185,15 @@ class Table:
     name: str = ""
 
 
+# the network settings of guides trained before network.std and network.loc_bound existed
+LEGACY_NET = "network.std=state network.loc_bound=null"
 MBM_BENCH = "fabrax bench problems=mbm split=test progress=false"
 SIX = '"classes=[' + ",".join(MBM_CLASSES) + ']"'
 T41_BENCH = "fabrax bench problems=mpinets split=test progress=false"
-RL_NOINTR = "python experiments/rl.py rl=thesis env.intrinsic_weight=0 curriculum.cells=0 hydra.run.dir=bench_out/rl/thesis_nointr"
+RL_NOINTR = f"python experiments/rl.py rl=thesis {LEGACY_NET} env.intrinsic_weight=0 curriculum.cells=0 hydra.run.dir=bench_out/rl/thesis_nointr"
+RL_THESIS = "python experiments/rl.py rl=thesis"
+RL_LONG = "env.intrinsic_weight=0 curriculum.cells=0 ppo.num_evals={} ppo.num_timesteps={}"  # neither, evaluations 33,280 steps apart
+ABLATION = ("thesis", "thesis_intr", "thesis_curr", "thesis_nointr", "thesis_nointr_gstd", "thesis_nointr_bounded")
 TABLES = {
     t.name: t
     for t in (
@@ -206,8 +215,9 @@ TABLES = {
         Table(
             "Table 4.1 on the MπNets-faithful test set (fabrics_guided_rl_thesis)",
             (
-                "python experiments/rl.py rl=mpinets ppo.num_timesteps=192000 ppo.num_evals=4 hydra.run.dir=bench_out/rl/mpinets",
-                "python experiments/rl.py rl=mpinets_train ppo.num_timesteps=192000 ppo.num_evals=4 hydra.run.dir=bench_out/rl/mpinets_train",
+                f"python experiments/rl.py rl=mpinets {LEGACY_NET} ppo.num_timesteps=192000 ppo.num_evals=4 hydra.run.dir=bench_out/rl/mpinets",
+                f"python experiments/rl.py rl=mpinets_train {LEGACY_NET} ppo.num_timesteps=192000 ppo.num_evals=4 "
+                "hydra.run.dir=bench_out/rl/mpinets_train",
                 f"{T41_BENCH} method=gf goal.criterion=keypoints out=bench_out/t41m/gf_kp",
                 f"{T41_BENCH} method=rl_guide method.scripted=switch method.name=fabric_switch out=bench_out/t41m/fabric_switch",
                 f"{T41_BENCH} method=rl_guide method.name=rl_guide_mpinets method.checkpoint=bench_out/rl/mpinets/checkpoints/000000128000 "
@@ -227,7 +237,7 @@ TABLES = {
         Table(
             "The pretrained guide: the thesis' scenes, a reward ablation at equal budget (fabrics_guided_rl_thesis §3.4)",
             (
-                "python experiments/rl.py rl=thesis hydra.run.dir=bench_out/rl/thesis",
+                f"python experiments/rl.py rl=thesis {LEGACY_NET} hydra.run.dir=bench_out/rl/thesis",
                 RL_NOINTR,
                 f"{RL_NOINTR} resume=true ppo.num_timesteps=399360",
                 f"FABRAX_CPU_DEVICES=2 {RL_NOINTR} resume=true ppo.num_timesteps=599040",
@@ -242,14 +252,24 @@ TABLES = {
                 "collisions than the env's fabric\"",
                 "mkdir -p docs/results/rl_pretrained/thesis_rewards && cd bench_out/rl/thesis && "
                 "cp progress.jsonl curves.png settings.json ../../../docs/results/rl_pretrained/thesis_rewards/",
+                f"{RL_THESIS} {LEGACY_NET} curriculum.cells=0 hydra.run.dir=bench_out/rl/thesis_intr",
+                f"{RL_THESIS} {LEGACY_NET} env.intrinsic_weight=0 hydra.run.dir=bench_out/rl/thesis_curr",
+                f"FABRAX_CPU_DEVICES=2 {RL_THESIS} network.std=global network.loc_bound=null {RL_LONG.format(16, 499200)} "
+                "hydra.run.dir=bench_out/rl/thesis_nointr_gstd",
+                f"FABRAX_CPU_DEVICES=2 {RL_THESIS} {RL_LONG.format(14, 432640)} hydra.run.dir=bench_out/rl/thesis_nointr_bounded",
+                "cp bench_out/rl/thesis_nointr_bounded/{progress.jsonl,curves.png,settings.json} docs/results/rl_pretrained/one_scale_bounded/ && "
+                "cp bench_out/rl/thesis_nointr_gstd/{curves.png,settings.json} docs/results/rl_pretrained/one_scale/",
+                "for r in thesis_nointr thesis_nointr_gstd; do python experiments/rl_spread.py bench_out/rl/$r "
+                "366080 399360 432640 465920 499200 --out docs/results/rl_spread/$r; done",
+                "python experiments/rl_spread.py bench_out/rl/thesis_nointr_bounded 332800 366080 399360 432640 "
+                "--out docs/results/rl_spread/thesis_nointr_bounded",
                 f"{T41_BENCH} method=rl_guide method.scripted=switch method.name=fabric_switch out=bench_out/t41m/fabric_switch",
-                f"{T41_BENCH} method=rl_guide method.name=rl_guide_thesis method.checkpoint=bench_out/rl/thesis/checkpoints/000000166400 "
-                "out=bench_out/t41m/rl_guide_thesis",
-                f"{T41_BENCH} method=rl_guide method.name=rl_guide_thesis_nointr "
-                "method.checkpoint=bench_out/rl/thesis_nointr/checkpoints/000000166400 out=bench_out/t41m/rl_guide_thesis_nointr",
+                f"for r in {' '.join(ABLATION)}; do {T41_BENCH} method=rl_guide method.name=rl_guide_$r "
+                "method.checkpoint=bench_out/rl/$r/checkpoints/000000166400 out=bench_out/t41m/rl_guide_$r; done",
                 f"{T41_BENCH} method=rl_guide method.name=rl_guide_pretrained method.checkpoint=pretrained out=bench_out/t41m/rl_guide_pretrained",
-                "python experiments/table_4_1.py bench_out/t41m/fabric_switch bench_out/t41m/rl_guide_thesis bench_out/t41m/rl_guide_thesis_nointr "
-                "bench_out/t41m/rl_guide_pretrained --out docs/results/rl_pretrained",
+                "python experiments/table_4_1.py bench_out/t41m/fabric_switch "
+                + " ".join(f"bench_out/t41m/rl_guide_{r}" for r in ABLATION)
+                + " bench_out/t41m/rl_guide_pretrained --out docs/results/rl_pretrained",
             ),
             {"main": pretrained_ablation},
             "rl_pretrained",
