@@ -111,17 +111,26 @@ T41_ROWS = {  # row label -> method label in docs/results/table_4_1.json
 }
 
 
-def t41_readme(result: dict) -> str:
+def _by_type(result: dict, rows: dict[str, str], first: str, time: bool) -> list[str]:
+    """Markdown lines of table_4_1.py JSON: one row per (label, method) of `rows` present in it,
+    success % (collision %) per problem type and over all, then (`time`) reaction or planning time."""
     t41 = _script("table_4_1")
-    lines = ["| method | task oriented | neutral start | neutral goal | all | time |", "|---|---:|---:|---:|---:|---:|"]
-    for label, name in T41_ROWS.items():
+    head = f"| {first} | task oriented | neutral start | neutral goal | all |" + (" time |" if time else "")
+    lines = [head, "|---|---:|---:|---:|---:|" + ("---:|" if time else "")]
+    for label, name in rows.items():
         e = result["methods"].get(name)
         if e is None:
             continue
         cells = [t41._cell(e["type"][t]) for t in t41.TYPES] + [t41._cell(e["all"])]
-        t = e["time"]
-        time = f"{t['reaction_ms']:.2f} ms reaction" if "reaction_ms" in t else f"{t['plan_s']:.2f} s"
-        lines.append(f"| {label} | " + " | ".join(cells) + f" | {time} |")
+        if time:
+            t = e["time"]
+            cells.append(f"{t['reaction_ms']:.2f} ms reaction" if "reaction_ms" in t else f"{t['plan_s']:.2f} s")
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def t41_readme(result: dict) -> str:
+    lines = _by_type(result, T41_ROWS, "method", time=True)
     thesis = result["thesis"]
     lines.append(
         "| *thesis (1,800 problems): pure fabric / AIT\\* / guide* | | | | "
@@ -161,12 +170,7 @@ PRETRAINED_ROWS = {  # row label -> method label in docs/results/rl_pretrained.j
 
 def pretrained_ablation(result: dict) -> str:
     """The equal-budget reward ablation and the shipped guide, success % (collision %) by problem type."""
-    t41 = _script("table_4_1")
-    lines = ["| 600 test problems, success % (collision %) | task oriented | neutral start | neutral goal | all |", "|---|---:|---:|---:|---:|"]
-    for label, name in PRETRAINED_ROWS.items():
-        e = result["methods"][name]
-        lines.append(f"| {label} | " + " | ".join(t41._cell(e["type"][t]) for t in t41.TYPES) + f" | {t41._cell(e['all'])} |")
-    return "\n".join(lines) + "\n"
+    return "\n".join(_by_type(result, PRETRAINED_ROWS, "600 test problems, success % (collision %)", time=False)) + "\n"
 
 
 # ------------------------------------------------------------------------ the registry

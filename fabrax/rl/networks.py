@@ -30,6 +30,8 @@ import jax
 import jax.numpy as jnp
 from flax import linen as nn
 
+from fabrax.settings import check_keys
+
 BPS_HEAD = ((8, 4, 2), (16, 3, 2), (32, 2, 1))  # (filters, kernel, stride) per layer
 # Normalised observations are clipped to +-OBS_CLIP standard deviations, as rl-games (the thesis' PPO)
 # and IsaacGym tasks clip theirs. brax's running normaliser divides by a std floored at 1e-6 and does
@@ -106,8 +108,24 @@ class GuideNetwork(nn.Module):
 
 
 STDS = ("global", "state")
+DEFAULTS = {"variant": "conv", "hidden": (512, 256, 128), "std": "global", "loc_bound": 3.0}  # configs/rl.yaml's `network`
 # what a checkpoint or settings.json without these network keys was trained with
 LEGACY = {"std": "state", "loc_bound": None}
+
+
+def network_settings(network: dict | None) -> dict:
+    """`network` settings with `DEFAULTS` filled in and checked, refused in one line naming the key:
+    variant conv | mlp, hidden widths, std global | state, loc_bound a positive number or None."""
+    net = {**DEFAULTS, **dict(network or {})}
+    check_keys(net, tuple(DEFAULTS), "rl network")
+    if net["variant"] not in ("conv", "mlp"):
+        raise ValueError(f"network.variant must be 'conv' or 'mlp', got {net['variant']!r}")
+    if net["std"] not in STDS:
+        raise ValueError(f"network.std must be one of {', '.join(STDS)}, got {net['std']!r}")
+    bound = net["loc_bound"]
+    if bound is not None and (isinstance(bound, bool) or not isinstance(bound, (int, float)) or not bound > 0):
+        raise ValueError(f"network.loc_bound must be a positive number or null, got {bound!r}")
+    return {**net, "hidden": [int(h) for h in net["hidden"]], "loc_bound": None if bound is None else float(bound)}
 
 
 class GuidePolicy(nn.Module):
@@ -153,10 +171,10 @@ def make_guide_networks(
     observation_size: dict[str, tuple[int, ...]],
     action_size: int,
     preprocess_observations_fn=None,
-    variant: str = "conv",
-    hidden: Sequence[int] = (512, 256, 128),
-    std: str = "global",
-    loc_bound: float | None = 3.0,
+    variant: str = DEFAULTS["variant"],
+    hidden: Sequence[int] = DEFAULTS["hidden"],
+    std: str = DEFAULTS["std"],
+    loc_bound: float | None = DEFAULTS["loc_bound"],
 ):
     """brax `network_factory` for `ppo.train`: actor and critic are each a `GuideNetwork` (Table
     3.4; separate parameters), the actor's outputs the mean and scale of brax's tanh-squashed
@@ -174,13 +192,10 @@ def make_guide_networks(
         preprocess = functools.partial(running_statistics.normalize, max_abs_value=OBS_CLIP)
     if not isinstance(observation_size, dict) or "q" not in observation_size or "pixels/bps" not in observation_size:
         raise ValueError("the guide's networks need the environment's dict observations as `ppo_observation` names them")
-    if std not in STDS:
-        raise ValueError(f"network.std must be one of {', '.join(STDS)}, got {std!r}")
-    if loc_bound is not None and not (isinstance(loc_bound, (int, float)) and not isinstance(loc_bound, bool) and loc_bound > 0):
-        raise ValueError(f"network.loc_bound must be a positive number or null, got {loc_bound!r}")
+    net = network_settings({"variant": variant, "hidden": hidden, "std": std, "loc_bound": loc_bound})
+    hidden, loc_bound = tuple(net["hidden"]), net["loc_bound"]  # a checkpoint's JSON gives a list
     shapes = {k.removeprefix("pixels/"): tuple(v) for k, v in observation_size.items()}
     dist = distribution.NormalTanhDistribution(event_size=action_size)
-    hidden = tuple(int(h) for h in hidden)  # a checkpoint's JSON gives a list
 
     def network(outputs: int, actor: bool = False):
         module = GuidePolicy(outputs // 2, variant, hidden) if actor and std == "global" else GuideNetwork(outputs, variant=variant, hidden=hidden)

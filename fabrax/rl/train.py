@@ -37,7 +37,7 @@ import jax
 from fabrax.rl.config import env_config
 from fabrax.rl.env import make_env
 from fabrax.rl.memory import check_rollout_fits
-from fabrax.rl.networks import STDS, make_guide_networks, ppo_observation
+from fabrax.rl.networks import make_guide_networks, network_settings, ppo_observation
 from fabrax.rl.policy import read_settings
 from fabrax.rl.wrappers import FixedStage, wrap_for_training
 from fabrax.settings import check_keys, from_mapping
@@ -114,17 +114,7 @@ def normalise(settings: dict[str, Any]) -> dict[str, Any]:
     check_keys(s, SECTIONS, "rl settings")
     env = _plain(dataclasses.asdict(env_config(s.get("env"))))  # every field, validated
     env_config(eval_settings(env, s.get("eval_scenes")))
-    net = {"variant": "conv", "hidden": [512, 256, 128], "std": "global", "loc_bound": 3.0, **dict(s.get("network") or {})}
-    check_keys(net, ("variant", "hidden", "std", "loc_bound"), "rl network")
-    if net["variant"] not in ("conv", "mlp"):
-        raise ValueError(f"network.variant must be 'conv' or 'mlp', got {net['variant']!r}")
-    if net["std"] not in STDS:
-        raise ValueError(f"network.std must be one of {', '.join(STDS)}, got {net['std']!r}")
-    bound = net["loc_bound"]
-    if bound is not None and (isinstance(bound, bool) or not isinstance(bound, (int, float)) or not bound > 0):
-        raise ValueError(f"network.loc_bound must be a positive number or null, got {bound!r}")
-    net["loc_bound"] = None if bound is None else float(bound)
-    net["hidden"] = [int(h) for h in net["hidden"]]
+    net = network_settings(s.get("network"))
     cur = {"cells": 0.0, "max_steps": None, **dict(s.get("curriculum") or {})}
     check_keys(cur, ("cells", "max_steps"), "rl curriculum")
     cur["cells"] = float(cur["cells"])
@@ -253,8 +243,7 @@ def train(settings: dict[str, Any], run_dir: str | Path, resume: bool = False, d
     env = make_env(settings["env"], settings["robot"], settings["fabric"], data_dir)
     check_rollout_fits(p, env.observation_size)  # a clear error now, not an allocation failure in the first compile
     eval_env = FixedStage(make_env(eval_settings(settings["env"], settings["eval_scenes"]), settings["robot"], settings["fabric"], data_dir), 2)
-    net = settings["network"]
-    factory = functools.partial(make_guide_networks, variant=net["variant"], hidden=tuple(net["hidden"]), std=net["std"], loc_bound=net["loc_bound"])
+    factory = functools.partial(make_guide_networks, **{**settings["network"], "hidden": tuple(settings["network"]["hidden"])})
     cur = settings["curriculum"]
     per_device = None if cur["max_steps"] is None else cur["max_steps"] / jax.local_device_count()
     wrap = functools.partial(wrap_for_training, cells=cur["cells"], start_stage=start_stage, max_steps=per_device)
