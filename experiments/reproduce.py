@@ -103,7 +103,7 @@ T41_ROWS = {  # row label -> method label in docs/results/table_4_1.json
     "pure fabric in the guide's env": "fabric_switch",
     "RL guide, 128k env steps on MPiNets-like scenes (64 envs)": "rl_guide_mpinets",
     "RL guide, 128k env steps, in distribution (MπNets train seed)": "rl_guide_mpinets_train",
-    "RL guide, pretrained: 333k env steps on MBM + procedural scenes": "rl_guide_pretrained",
+    "RL guide, pretrained: 166k env steps on MBM + procedural scenes": "rl_guide_pretrained",
     "GFCS, 1 batch (IK joint goal)": "gfcs",
     "GFCS, 1 batch (pose goal, no IK)": "gfcs_pose (1 b)",
     "OMPL RRTConnect, 20 s, first solution": "rrtconnect (20 s, first solution)",
@@ -162,9 +162,10 @@ PRETRAINED_ROWS = {  # row label -> method label in docs/results/rl_pretrained.j
     "intrinsic reward only, 166.4k": "rl_guide_thesis_intr",
     "curriculum only, 166.4k": "rl_guide_thesis_curr",
     "neither, 166.4k": "rl_guide_thesis_nointr",
-    "same, 332.8k (shipped: `method.checkpoint=pretrained`)": "rl_guide_pretrained",
+    "same, 332.8k (its run's best on validation)": "rl_guide_thesis_nointr_332800",
     "neither, one action scale for all states, 166.4k": "rl_guide_thesis_nointr_gstd",
     "same, and a bounded mean (today's defaults), 166.4k": "rl_guide_thesis_nointr_bounded",
+    "the same checkpoint shipped (`method.checkpoint=pretrained`)": "rl_guide_pretrained",
 }
 
 
@@ -194,6 +195,8 @@ LEGACY_NET = "network.std=state network.loc_bound=null"
 MBM_BENCH = "fabrax bench problems=mbm split=test progress=false"
 SIX = '"classes=[' + ",".join(MBM_CLASSES) + ']"'
 T41_BENCH = "fabrax bench problems=mpinets split=test progress=false"
+# validation: 256 MPiNets-like problems of another seed, where checkpoints are chosen (never on the test split)
+VAL_BENCH = "fabrax bench problems=mpinets split=test seed=20000 limit=256 solvable_s=null progress=false method=rl_guide"
 RL_NOINTR = f"python experiments/rl.py rl=thesis {LEGACY_NET} env.intrinsic_weight=0 curriculum.cells=0 hydra.run.dir=bench_out/rl/thesis_nointr"
 RL_THESIS = "python experiments/rl.py rl=thesis"
 RL_LONG = "env.intrinsic_weight=0 curriculum.cells=0 ppo.num_evals={} ppo.num_timesteps={}"  # neither, evaluations 33,280 steps apart
@@ -245,15 +248,6 @@ TABLES = {
                 RL_NOINTR,
                 f"{RL_NOINTR} resume=true ppo.num_timesteps=399360",
                 f"FABRAX_CPU_DEVICES=2 {RL_NOINTR} resume=true ppo.num_timesteps=599040",
-                "for s in 133120 166400 332800 366080 532480; do fabrax bench problems=mpinets split=test seed=20000 limit=256 solvable_s=null "
-                "progress=false method=rl_guide method.name=nointr_$s method.checkpoint=bench_out/rl/thesis_nointr/checkpoints/000000$s "
-                "out=bench_out/val/nointr_$s; done",
-                "fabrax bench problems=mpinets split=test seed=20000 limit=256 solvable_s=null progress=false method=rl_guide "
-                "method.scripted=switch method.name=fabric_switch out=bench_out/val/fabric_switch",
-                "python experiments/table_4_1.py bench_out/val/* --out docs/results/rl_pretrained/validation",
-                "python experiments/ship_guide.py bench_out/rl/thesis_nointr --step 332800 --curves docs/results/rl_pretrained "
-                '--note "resumed at 199,680 and 399,360 env steps; the checkpoint of highest validation success with no more '
-                "collisions than the env's fabric\"",
                 "mkdir -p docs/results/rl_pretrained/thesis_rewards && cd bench_out/rl/thesis && "
                 "cp progress.jsonl curves.png settings.json ../../../docs/results/rl_pretrained/thesis_rewards/",
                 f"{RL_THESIS} {LEGACY_NET} curriculum.cells=0 hydra.run.dir=bench_out/rl/thesis_intr",
@@ -261,6 +255,15 @@ TABLES = {
                 f"FABRAX_CPU_DEVICES=2 {RL_THESIS} network.std=global network.loc_bound=null {RL_LONG.format(16, 499200)} "
                 "hydra.run.dir=bench_out/rl/thesis_nointr_gstd",
                 f"FABRAX_CPU_DEVICES=2 {RL_THESIS} {RL_LONG.format(14, 432640)} hydra.run.dir=bench_out/rl/thesis_nointr_bounded",
+                f"for s in 133120 166400 332800 366080 532480; do {VAL_BENCH} method.name=nointr_$s "
+                "method.checkpoint=bench_out/rl/thesis_nointr/checkpoints/000000$s out=bench_out/val/nointr_$s; done",
+                f"for s in 166400 266240 332800 432640; do {VAL_BENCH} method.name=bounded_$s "
+                "method.checkpoint=bench_out/rl/thesis_nointr_bounded/checkpoints/000000$s out=bench_out/val/bounded_$s; done",
+                f"{VAL_BENCH} method.scripted=switch method.name=fabric_switch out=bench_out/val/fabric_switch",
+                "python experiments/table_4_1.py bench_out/val/* --out docs/results/rl_pretrained/validation",
+                "python experiments/ship_guide.py bench_out/rl/thesis_nointr_bounded --step 166400 --curves docs/results/rl_pretrained "
+                '--note "one run to 432,640 env steps under FABRAX_CPU_DEVICES=2 (two XLA CPU devices); 166,400 is the checkpoint '
+                "of highest validation success (256 MPiNets-like problems of seed 20000) with fewer collisions than the env's fabric\"",
                 "cp bench_out/rl/thesis_nointr_bounded/{progress.jsonl,curves.png,settings.json} docs/results/rl_pretrained/one_scale_bounded/ && "
                 "cp bench_out/rl/thesis_nointr_gstd/{curves.png,settings.json} docs/results/rl_pretrained/one_scale/",
                 "for r in thesis_nointr thesis_nointr_gstd; do python experiments/rl_spread.py bench_out/rl/$r "
@@ -270,10 +273,12 @@ TABLES = {
                 f"{T41_BENCH} method=rl_guide method.scripted=switch method.name=fabric_switch out=bench_out/t41m/fabric_switch",
                 f"for r in {' '.join(ABLATION)}; do {T41_BENCH} method=rl_guide method.name=rl_guide_$r "
                 "method.checkpoint=bench_out/rl/$r/checkpoints/000000166400 out=bench_out/t41m/rl_guide_$r; done",
+                f"{T41_BENCH} method=rl_guide method.name=rl_guide_thesis_nointr_332800 "
+                "method.checkpoint=bench_out/rl/thesis_nointr/checkpoints/000000332800 out=bench_out/t41m/rl_guide_thesis_nointr_332800",
                 f"{T41_BENCH} method=rl_guide method.name=rl_guide_pretrained method.checkpoint=pretrained out=bench_out/t41m/rl_guide_pretrained",
                 "python experiments/table_4_1.py bench_out/t41m/fabric_switch "
                 + " ".join(f"bench_out/t41m/rl_guide_{r}" for r in ABLATION)
-                + " bench_out/t41m/rl_guide_pretrained --out docs/results/rl_pretrained",
+                + " bench_out/t41m/rl_guide_thesis_nointr_332800 bench_out/t41m/rl_guide_pretrained --out docs/results/rl_pretrained",
             ),
             {"main": pretrained_ablation},
             "rl_pretrained",

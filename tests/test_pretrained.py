@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from fabrax.problems.procedural import MPINETS_LIKE
+from fabrax.rl.networks import DEFAULTS
 from fabrax.rl.policy import PRETRAINED, load_guide, pretrained_dir
 
 
@@ -25,8 +26,9 @@ def test_the_shipped_guide_loads_and_says_how_it_was_trained(guide):
     scenes = guide.settings["env"]["scenes"]
     assert scenes["mpinets"] == 0 and not {c for c, n in scenes["procedural"] if n} & set(MPINETS_LIKE)
     assert scenes["mbm_classes"] and sum(n for _, n in scenes["generated"]) > 0  # dataset and procedural scenes
-    # trained before `network.std` existed: its settings and checkpoint read as the network's own scale output
-    assert guide.settings["network"]["std"] == "state" and "std" not in json.loads((pretrained_dir() / "settings.json").read_text())["network"]
+    # trained with today's action distribution: one learned scale per action dimension, a bounded mean
+    saved = json.loads((pretrained_dir() / "settings.json").read_text())["network"]
+    assert {k: saved[k] for k in ("std", "loc_bound")} == {k: DEFAULTS[k] for k in ("std", "loc_bound")}
 
 
 def test_the_shipped_guide_acts_in_the_bench(guide, panda):

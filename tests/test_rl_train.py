@@ -276,3 +276,43 @@ def test_spread_script_reads_the_action_distribution_of_checkpoints(run, tmp_pat
     (row, _), (pair,) = result["checkpoints"], result["kl"]
     assert len(row["scale_min"]) == 6 + 7 + 1 and all(0.001 <= s <= m for s, m in zip(row["scale_min"], row["scale_median"]))
     assert abs(pair["max"]) < 1e-3  # KL of a distribution with itself (brax adds 1e-5 inside its log)
+
+
+def test_a_guide_from_before_the_network_options_loads_as_it_was_trained(run, tmp_path):
+    """A run recorded before `network.std` and `network.loc_bound` (neither in its settings nor in its
+    checkpoint's network config) had a scale output per state and an unbounded mean
+    (`fabrax.rl.networks.LEGACY`): it loads and acts as that network."""
+    import functools
+
+    from brax.training.agents.ppo import checkpoint as ppo_checkpoint
+
+    from fabrax.rl.networks import make_guide_networks
+    from fabrax.rl.policy import load_guide
+
+    run_dir, _, params = run
+    new = load_guide(run_dir)
+    cfg = ppo_checkpoint.load_config(new.checkpoint)
+    kwargs = {k: v for k, v in cfg.network_factory_kwargs.items() if k not in ("std", "loc_bound")}
+    factory = functools.partial(make_guide_networks, **kwargs)
+    sizes = {k: tuple(v) for k, v in cfg.observation_size.items()}
+    legacy = make_guide_networks(sizes, cfg.action_size, **kwargs, std="state", loc_bound=None)
+    policy = legacy.policy_network.init(jax.random.PRNGKey(1))
+    old = tmp_path / "old"
+    settings = json.loads((run_dir / "settings.json").read_text())
+    settings["network"] = {k: v for k, v in settings["network"].items() if k not in ("std", "loc_bound")}
+    old.mkdir()
+    (old / "settings.json").write_text(json.dumps(settings))
+    saved = ppo_checkpoint.network_config(sizes, cfg.action_size, cfg.normalize_observations, factory)
+    ppo_checkpoint.save(old / "checkpoints", new.steps, (params[0], policy, params[2]), saved)
+    (written,) = (old / "checkpoints").glob("*/ppo_network_config.json")
+    network_config = json.loads(written.read_text())  # as older brax checkpoints of the guide recorded it
+    network_config["network_factory_kwargs"] = kwargs
+    written.write_text(json.dumps(network_config))
+
+    guide = load_guide(old)
+    assert guide.settings["network"]["std"] == "state" and guide.settings["network"]["loc_bound"] is None
+    last = jax.tree.leaves(guide.params[1])
+    assert 2 * cfg.action_size in {x.shape[-1] for x in last}  # a loc and a scale per action dimension and state
+    obs = {k.removeprefix("pixels/"): np.zeros(s, np.float32) for k, s in sizes.items()}  # the env's names
+    action = np.asarray(guide.act(obs))
+    assert action.shape == (cfg.action_size,) and np.isfinite(action).all()
