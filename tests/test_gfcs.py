@@ -407,3 +407,31 @@ def test_learned_sampler_refuses_pose_goals_before_any_work(fabric_params, panda
         GFCSMethod(fabric, params, GFCSConfig(goal="pose"), learner=object()).solve(panda, [p])
     with pytest.raises(ValueError, match="posed has a pose goal"):
         learn(fabric, params, [p], GFCSConfig(), SelfSupConfig(), Path("/nonexistent/ckpt.msgpack"))
+
+
+def test_straight_line_floor_bounds_a_hand_path_from_below(shared_data, tmp_path):
+    """experiments/mbm_straight_line.py: the start-to-goal distance of a frame bounds the length of
+    any path of that frame from below; checked on the hand path of a joint-space line on MBM problems."""
+    import importlib.util
+    import json
+
+    from fabrax.config import load_robot
+    from fabrax.problems.mbm import load_mbm
+    from fabrax.robot.kinematics import frame_path
+
+    spec = importlib.util.spec_from_file_location("mbm_straight_line", Path(__file__).parents[1] / "experiments" / "mbm_straight_line.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    assert script.main(["--out", str(tmp_path / "s"), "--split", "train", "--classes", "box", "cage", "--limit", "3"]) == 0
+    rows = json.loads((tmp_path / "s.json").read_text())["classes"]
+    assert set(rows) == {"box", "cage"} and rows["box"]["n"] == 3 and rows["box"]["paper_gfcs"] == 0.97
+    robot = load_robot("panda_mbm")
+    problems = load_mbm(robot, classes=["box"], split="train", limit=3)
+    floor = script.straight_lines(robot, problems, [robot.ee_frame])[robot.ee_frame]
+    np.testing.assert_allclose(floor.mean(), rows["box"][robot.ee_frame]["mean"], rtol=1e-6)
+    for p, d in zip(problems, floor):  # a straight joint-space interpolation's hand path is no shorter
+        q = np.linspace(p.start_q, p.goal_q, 200)
+        hand = np.asarray(frame_path(robot, jnp.asarray(q, jnp.float32), robot.ee_frame)[0])
+        assert np.linalg.norm(np.diff(hand, axis=0), axis=-1).sum() >= d - 1e-5
+    with pytest.raises(SystemExit, match="--frames: nowhere"):
+        script.main(["--out", str(tmp_path / "x"), "--frames", "nowhere"])
