@@ -1,6 +1,7 @@
 """Merge `fabrax bench` runs into one table per problem class, laid out like gfcs_paper Table I.
 
     python experiments/bench_table.py bench_out/mbm/* --out docs/results/bench_mbm
+    python experiments/bench_table.py bench_out/mbm/gfcs_hand --out docs/results/mbm --merge   # add one run
 
 Reads each run's results.json and writes OUT.md (a markdown section per class:
 success %, collision %, and mean ± std over successful problems of EE length,
@@ -57,6 +58,14 @@ def collect(runs: list[Path]) -> dict:
     return {"runs": meta_out, "classes": table}
 
 
+def merge(old: dict, new: dict) -> dict:
+    """`old` with `new`'s runs and methods added, a method of the same name in a class replaced."""
+    classes = {c: dict(m) for c, m in old["classes"].items()}
+    for c, methods in new["classes"].items():
+        classes.setdefault(c, {}).update(methods)
+    return {"runs": {**old["runs"], **new["runs"]}, "classes": classes}
+
+
 def markdown(result: dict) -> str:
     fmt = lambda s: "NA" if s is None else f"{s['mean']:.2f} ± {s['std']:.2f}"  # noqa: E731
     classes = list(result["classes"])
@@ -89,11 +98,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", nargs="+", type=Path, help="run directories holding results.json")
     ap.add_argument("--out", type=Path, required=True, help="output path without suffix")
+    ap.add_argument("--merge", action="store_true", help="add these runs' methods to an existing OUT.json, replacing same-named ones")
     args = ap.parse_args()
     runs = [r for r in args.runs if (r / "results.json").exists()]
     if not runs:
         raise SystemExit("no results.json in the given run directories")
     result = collect(runs)
+    if args.merge:
+        result = merge(json.loads(args.out.with_suffix(".json").read_text()), result)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.with_suffix(".json").write_text(json.dumps(result, indent=1))
     args.out.with_suffix(".md").write_text(markdown(result))

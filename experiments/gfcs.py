@@ -108,7 +108,7 @@ def saved_rows(cfg: dict, path: Path) -> list[dict]:
     old = saved.get("meta", {}).get("config", {})
     as_dict = lambda f: config.load("fabric", f) if isinstance(f, str) else f  # noqa: E731
     differ = [k for k in SAME if k in old and (as_dict(old[k]) != as_dict(cfg[k]) if k == "fabric" else old[k] != cfg[k])]
-    differ += [f"method.{k}" for k in ("final_pose", "via_tolerance") if old.get("method", {}).get(k) != cfg["method"].get(k)]
+    differ += [f"method.{k}" for k in ("final_pose", "via_tolerance", "hand_mass") if old.get("method", {}).get(k) != cfg["method"].get(k)]
     if differ:
         raise SystemExit(f"reactive.results: {path} was solved with other settings: {', '.join(differ)}")
     return saved["rows"]
@@ -126,7 +126,7 @@ def reactive(cfg: dict, robot, fabric, params, problems, rows, gfcs_cfg) -> dict
 
     from fabrax.bench.metrics import Goal, evaluate
     from fabrax.check.checker import check_path
-    from fabrax.planners.gfcs.cost import to_unconstrained
+    from fabrax.planners.gfcs.cost import to_unconstrained, with_hand_mass
     from fabrax.planners.gfcs.reactive import blocking_cuboids, reexecute, replan, replan_config, with_obstacles
     from fabrax.planners.gfcs.solver import make_step
     from fabrax.problems import ProblemBatch
@@ -134,7 +134,8 @@ def reactive(cfg: dict, robot, fabric, params, problems, rows, gfcs_cfg) -> dict
     steps = int(round(cfg["t_max"] / cfg["dt"]))
     final_pose, via = cfg["method"]["final_pose"], cfg["method"]["via_tolerance"]
     dt, goal = cfg["dt"], Goal(**cfg["goal"])
-    execute = jax.jit(lambda prob, commands, scene: reexecute(fabric, params, prob, commands, scene, dt, steps, final_pose, via))  # compiled once
+    executed = with_hand_mass(params, cfg["method"].get("hand_mass"))  # the fabric as the solver rolled it out
+    execute = jax.jit(lambda prob, commands, scene: reexecute(fabric, executed, prob, commands, scene, dt, steps, final_pose, via))  # compiled once
     batches = int(cfg["reactive"]["replan_batches"])
     try:
         replan_cfg = replan_config(gfcs_cfg, batches, float(cfg["reactive"]["replan_std"])) if batches else None

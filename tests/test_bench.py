@@ -376,3 +376,15 @@ def test_a_stopped_run_resumes_and_refuses_other_settings(panda, tmp_path):
     assert [r["problem"] for r in rows] == [p.name for p in problems] and all(r["reached"] for r in rows)
     with pytest.raises(CheckpointMismatch, match="seed"):
         run(Counting(), panda, problems, progress=False, checkpoint=ckpt, settings={**settings, "seed": 1}, resume=True)
+
+
+def test_bench_table_merge_adds_runs_and_replaces_same_named_methods():
+    """experiments/bench_table.py --merge: one new run's methods join a table without rerunning the others."""
+    spec = importlib.util.spec_from_file_location("bench_table", Path(__file__).parents[1] / "experiments" / "bench_table.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    old = {"runs": {"a": 1}, "classes": {"box": {"gf": {"x": 1}, "gfcs": {"x": 2}}}}
+    new = {"runs": {"b": 2}, "classes": {"box": {"gfcs": {"x": 3}, "gfcs_hand": {"x": 4}}, "cage": {"gfcs_hand": {"x": 5}}}}
+    out = script.merge(old, new)
+    assert out["classes"] == {"box": {"gf": {"x": 1}, "gfcs": {"x": 3}, "gfcs_hand": {"x": 4}}, "cage": {"gfcs_hand": {"x": 5}}}
+    assert out["runs"] == {"a": 1, "b": 2} and old["classes"]["box"]["gfcs"] == {"x": 2}  # the old table is not changed

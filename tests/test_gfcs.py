@@ -435,3 +435,29 @@ def test_straight_line_floor_bounds_a_hand_path_from_below(shared_data, tmp_path
         assert np.linalg.norm(np.diff(hand, axis=0), axis=-1).sum() >= d - 1e-5
     with pytest.raises(SystemExit, match="--frames: nowhere"):
         script.main(["--out", str(tmp_path / "x"), "--frames", "nowhere"])
+
+
+def test_hand_mass_makes_the_hand_metric_constant_in_the_rollouts(fabric_params, panda):
+    """`hand_mass` sets the end-effector attractor's far mass (m_lo) and nothing else; at m_hi the
+    hand's kinetic energy no longer depends on its distance to the target, and the rollouts use it."""
+    from fabrax.fabrics import energies as E
+    from fabrax.planners.gfcs.cost import with_hand_mass
+
+    fabric, params = fabric_params
+    assert with_hand_mass(params, None) is params
+    heavy = with_hand_mass(params, float(params["ee"]["m_hi"]))
+    assert {k for k in params["ee"] if not np.array_equal(params["ee"][k], heavy["ee"][k])} == {"m_lo"}
+    assert all(heavy[k] is params[k] for k in params if k != "ee")
+    rd = jnp.array([0.3, -0.1, 0.2])
+
+    def kinetic(p, r):
+        return float(E.attractor_energy(jnp.asarray(r), rd, p["m_hi"], p["m_lo"], p["alpha_mass"]))
+
+    assert kinetic(heavy["ee"], [0.5, 0.0, 0.0]) == pytest.approx(kinetic(heavy["ee"], [0.01, 0.0, 0.0]), rel=1e-6)
+    assert kinetic(params["ee"], [0.5, 0.0, 0.0]) < kinetic(params["ee"], [0.01, 0.0, 0.0])  # the fabric's: lighter far away
+    problem = _problem(READY + np.array([0.5, 0.2, 0, 0.2, 0, 0, 0], np.float32))
+    z = to_unconstrained(jnp.asarray(READY)[None], panda.lower, panda.upper)
+    _, light = jax.jit(lambda z: sequence_cost(fabric, params, problem, z, steps=300))(z)
+    _, held = jax.jit(lambda z: sequence_cost(fabric, params, problem, z, steps=300, hand_mass=float(params["ee"]["m_hi"])))(z)
+    assert bool(light.reached) and bool(held.reached)
+    assert not np.allclose(np.asarray(light.q), np.asarray(held.q), atol=1e-4)

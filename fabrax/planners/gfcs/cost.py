@@ -64,6 +64,7 @@ def population_cost(
     final_pose: bool = True,
     length_weight: float = 0.0,
     goal: str = "joint",
+    hand_mass: float | None = None,
 ) -> tuple[jax.Array, Trajectory]:
     """GFCOP costs of candidates zs (P, n, dof) and their trajectories, rolled out together.
 
@@ -78,10 +79,12 @@ def population_cost(
     length_weight: s per metre of goal-frame path added to the cost (0: the paper's time-only cost).
     goal: "joint" (eq. 6: the last command is the joint goal) or "pose" (the last segment aims the
     hand at the goal pose and ends at the pose test; see the module docstring).
+    hand_mass: the end-effector attractor's mass far from its target in every segment (`with_hand_mass`).
     """
     if goal not in GOALS:
         raise ValueError(f"goal must be one of {GOALS}, got {goal!r}")
     robot = fabric.robot
+    params = with_hand_mass(params, hand_mass)
     commands = to_commands(zs, robot.lower, robot.upper)
     goals = jnp.concatenate([commands, jnp.broadcast_to(problem.goal_q, (zs.shape[0], 1, robot.dof))], axis=1)
     if goal == "pose":
@@ -110,6 +113,16 @@ def population_cost(
     if length_weight:
         costs = costs + length_weight * ee_length(fabric, trajs.q)
     return costs, trajs
+
+
+def with_hand_mass(params: Params, mass: float | None) -> Params:
+    """The fabric's parameters with the end-effector attractor's far mass (its energy's m_lo, thesis
+    §3.3.1) set to `mass` (None or no such term: unchanged). At the near mass m_hi the hand's metric
+    is the same everywhere, so while the hand attractor is on, the hand leads in task space from the
+    start of a segment, where the joint attractor's metric otherwise bends its path."""
+    if mass is None or "ee" not in params:
+        return params
+    return {**params, "ee": {**params["ee"], "m_lo": jnp.full_like(params["ee"]["m_lo"], mass)}}
 
 
 def _joint_error(p, q):

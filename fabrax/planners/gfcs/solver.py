@@ -46,6 +46,7 @@ class GFCSConfig:
     final_pose: bool = True  # the goal segment also attracts the hand to its pose at the goal (`population_cost`)
     length_weight: float = 1.0  # s per metre of goal-frame path added to the cost (0: gfcs_paper eq. 4)
     direct: bool = True  # the first batch's first candidate commands the start: the fabric aimed straight at the goal
+    hand_mass: float | None = None  # the hand attractor's far mass in the rollouts (`with_hand_mass`; None: the fabric's)
     goal: str = "joint"  # "pose": the last segment aims the hand at the goal pose (pose goals need no IK; `population_cost`)
 
     def __post_init__(self):
@@ -95,6 +96,7 @@ def _evaluate(fabric, params: Params, problem: ProblemBatch, pop: jax.Array, cfg
         final_pose=cfg.final_pose,
         length_weight=cfg.length_weight,
         goal=cfg.goal,
+        hand_mass=cfg.hand_mass,
     )
     k = jnp.argmin(costs)
     return costs, jax.tree.map(lambda a: a[k], trajs)
