@@ -461,3 +461,5 @@ def test_hand_mass_makes_the_hand_metric_constant_in_the_rollouts(fabric_params,
     _, held = jax.jit(lambda z: sequence_cost(fabric, params, problem, z, steps=300, hand_mass=float(params["ee"]["m_hi"])))(z)
     assert bool(light.reached) and bool(held.reached)
     assert not np.allclose(np.asarray(light.q), np.asarray(held.q), atol=1e-4)
+    with pytest.raises(ValueError, match="hand_mass must be a positive mass"):
+        GFCSConfig(hand_mass=0.0)

@@ -52,6 +52,8 @@ class GFCSConfig:
     def __post_init__(self):
         if self.goal not in GOALS:
             raise ValueError(f"GFCS goal must be one of {GOALS}, got {self.goal!r}")
+        if self.hand_mass is not None and not self.hand_mass > 0:
+            raise ValueError(f"GFCS hand_mass must be a positive mass (or null), got {self.hand_mass!r}")
 
     @property
     def enough(self) -> int | None:
