@@ -15,11 +15,11 @@ from fabrax import config
 from fabrax.planners.gfcs.autoencoder import fit
 from fabrax.planners.gfcs.encoding import Encoding
 from fabrax.problems import ProblemBatch
-from fabrax.problems.mbm import load_mbm
+from fabrax.problems.mbm import TABLE_I_CLASSES, load_mbm
 
 robot = config.load_robot("panda_mbm")
 enc = Encoding()
-classes = ["table_under_pick", "box", "bookshelf_tall", "cage", "bookshelf_thin", "bookshelf_small"]
+classes = list(TABLE_I_CLASSES)
 out = {}
 for split in ("train", "test"):
     ps = [p for p in load_mbm(robot, os.environ["FABRAX_DATA"], classes, split, None) if p.valid]

@@ -16,8 +16,7 @@ import json
 from pathlib import Path
 
 from fabrax.bench.collect import write_report
-
-CLASSES = ("table_under_pick", "box", "bookshelf_tall", "cage", "bookshelf_thin", "bookshelf_small")
+from fabrax.problems.mbm import TABLE_I_CLASSES
 
 
 def collect(run_dirs: list[Path]) -> dict:
@@ -49,7 +48,7 @@ def markdown(result: dict) -> str:
         "|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     total = {"n": 0}
-    for c in CLASSES:
+    for c in TABLE_I_CLASSES:
         s = result["classes"].get(c)
         if s is None:
             continue

@@ -39,6 +39,7 @@ def _script(name: str):
 
 # ------------------------------------------------------------------------ MotionBenchMaker (gfcs_paper Table I)
 
+# fabrax.problems.mbm.TABLE_I_CLASSES, written out: this script imports nothing of fabrax
 MBM_CLASSES = ("table_under_pick", "box", "bookshelf_tall", "cage", "bookshelf_thin", "bookshelf_small")
 PAPER_TABLE_I = {  # gfcs_paper Table I: success % per class (GF; GFCS after 5 batches and after 1)
     "*paper GF*": (0, 100, 88, 88, 80, 94),

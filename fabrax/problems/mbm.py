@@ -25,6 +25,8 @@ from fabrax.robot.robot import Robot
 from fabrax.scene import empty, from_dict
 
 CLASSES = ("bookshelf_small", "bookshelf_tall", "bookshelf_thin", "box", "cage", "table_pick", "table_under_pick")
+# the six classes of gfcs_paper Table I, in its order (table_pick is not among them)
+TABLE_I_CLASSES = ("table_under_pick", "box", "bookshelf_tall", "cage", "bookshelf_thin", "bookshelf_small")
 ARCHIVE = "mbm_panda_problems.tar.bz2"
 MBM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))  # the arm every MotionBenchMaker request is posed for
 SPLITS = {"train": range(1, 51), "test": range(51, 101), "all": range(1, 101)}
