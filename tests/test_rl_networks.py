@@ -1,5 +1,5 @@
 """The guide's network (thesis Table 3.4): the patch-matmul 3-D convolution is lax's convolution,
-value and gradient; the network takes the env's observation dict."""
+value and gradient, and so is the shift-add one's value; the network takes the env's observation dict."""
 
 import jax
 import jax.numpy as jnp
@@ -9,6 +9,7 @@ import pytest
 from fabrax.rl.networks import Conv3D, GuideNetwork
 
 LAYERS = [((2, 16, 16, 16, 3), 4, 2), ((2, 7, 7, 7, 8), 3, 2), ((1, 9, 9, 9, 4), 3, 1), ((1, 3, 3, 3, 16), 2, 1)]  # Table 3.4's shapes
+LAYERS += [((1, 20, 20, 20, 1), 4, 2), ((1, 5, 6, 7, 2), 3, 3)]  # the map head's first layer; stride = kernel, uneven sides
 
 
 @pytest.mark.parametrize("shape, kernel, stride", LAYERS)
@@ -25,6 +26,8 @@ def test_conv3d_is_lax_convolution_value_and_gradient(shape, kernel, stride):
         return conv.apply({"params": {"kernel": w, "bias": b}}, x)
 
     np.testing.assert_allclose(jax.jit(ours)(w, x), jax.jit(reference)(w, x), rtol=1e-4, atol=1e-4)
+    shifted = Conv3D(5, kernel, stride, shift=True)  # the deployed guide's forward pass, same parameters
+    np.testing.assert_allclose(jax.jit(shifted.apply)({"params": {"kernel": w, "bias": b}}, x), jax.jit(reference)(w, x), rtol=1e-4, atol=1e-4)
     grad = lambda f: jax.jit(jax.grad(lambda w, x: jnp.sum(jnp.sin(f(w, x))), argnums=(0, 1)))  # noqa: E731
     for a, r in zip(grad(ours)(w, x), grad(reference)(w, x)):
         np.testing.assert_allclose(a, r, rtol=1e-3, atol=1e-3)
@@ -75,6 +78,7 @@ def test_ppo_factory_shapes_and_parameter_counts_match_table_3_4(panda, variant,
     sizes = {k: tuple(v) for k, v in ppo_observation(shapes).items()}
     action = 6 + panda.dof + 1
     nets = make_guide_networks(sizes, action, variant=variant, std=std)
+    deployed = make_guide_networks(sizes, action, variant=variant, std=std, shift=True)  # load_guide's
     proprio = 24 + panda.dof + 24 + 3 * panda.dof + panda.n_spheres + 1
     bps_p, bps_out = _head(BPS_HEAD, 16, 3)
     map_p, map_out = _head(MAP_HEAD, 20, 1)
@@ -83,11 +87,14 @@ def test_ppo_factory_shapes_and_parameter_counts_match_table_3_4(panda, variant,
     trunk = _dense(proprio, 256) + _dense(width, 512) + _dense(512, 256) + _dense(256, 128) + (bps_p + map_p if variant == "conv" else 0)
     obs = {k: jax.random.normal(jax.random.PRNGKey(i), (3, 2) + s) for i, (k, s) in enumerate(sizes.items())}  # PPO's (batch, unroll, ...)
     policy_head = _dense(128, action) + action if std == "global" else _dense(128, 2 * action)  # locs and one scale each, or both per state
-    for net, outputs, head in ((nets.policy_network, 2 * action, policy_head), (nets.value_network, None, _dense(128, 1))):
+    pairs = ((nets.policy_network, deployed.policy_network), (nets.value_network, deployed.value_network))
+    for (net, shifted), outputs, head in zip(pairs, (2 * action, None), (policy_head, _dense(128, 1))):
         params = net.init(jax.random.PRNGKey(0))
         n = sum(x.size for x in jax.tree.leaves(params))
         assert n == trunk + head
+        assert jax.tree.structure(shifted.init(jax.random.PRNGKey(0))) == jax.tree.structure(params)
         out = net.apply(None, params, obs)
+        np.testing.assert_allclose(shifted.apply(None, params, obs), out, rtol=1e-4, atol=1e-4)
         assert out.shape == ((3, 2, outputs) if outputs else (3, 2))
         if outputs:
             locs, scales = np.asarray(out[..., :action]).reshape(6, -1), np.asarray(out[..., action:]).reshape(6, -1)

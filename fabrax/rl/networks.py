@@ -18,7 +18,10 @@ by states whose squashed actions barely moved, and the clipped objective does no
 XLA's CPU convolution, and its gradient above all, is slow; `Conv3D` therefore gathers each output
 voxel's k^3 input patch with strided slices and applies the kernel as one 2-D matrix product, the
 same linear map as `lax.conv_general_dilated` with VALID padding (tested against it). Dense layers
-act on 2-D arrays only: on 5-D tensors their gradients were 7-20x slower here.
+act on 2-D arrays only: on 5-D tensors their gradients were 7-20x slower here. A deployed guide
+(`fabrax.rl.policy.load_guide`, no gradients) convolves by `shift_conv3d` instead, the same map
+again: space-to-depth by a reshape, one matrix product, then a sum of shifted slices. Its forward
+pass is the faster one on the CPU, its gradient the slower (docs/results.md, "Reaction time").
 """
 
 from __future__ import annotations
@@ -58,18 +61,48 @@ def patches3d(x: jax.Array, kernel: int, stride: int) -> jax.Array:
     return jnp.concatenate(parts, axis=-1)
 
 
+def shift_conv3d(x: jax.Array, w: jax.Array, stride: int) -> jax.Array:
+    """VALID 3-D convolution of x (B, D, H, W, C) with w (k, k, k, C, F), forward only.
+
+    Writing a kernel offset i = s a + b (s the stride, a < ceil(k/s), b < s), output voxel o reads
+    input s (o + a) + b: on the space-to-depth input y[u, b] = x[s u + b] the convolution is
+    sum_a y[o + a] W_a, a stride-1 convolution with a kernel of ceil(k/s) blocks. One matrix product
+    gives every y[u] W_a; the sum over a adds shifted slices of it. Offsets past k (when s does not
+    divide k) get zero weights, and the input is zero-padded to whole blocks (those rows meet only
+    zero weights)."""
+    k, c, f = w.shape[0], w.shape[3], w.shape[4]
+    s, batch = stride, x.shape[0]
+    out = [(n - k) // s + 1 for n in x.shape[1:4]]
+    if min(out) < 1:
+        raise ValueError(f"input of spatial shape {x.shape[1:4]} is smaller than the kernel {k}")
+    ka = -(-k // s)  # kernel blocks per axis
+    blocks = [o + ka - 1 for o in out]
+    need = [b * s for b in blocks]
+    x = jnp.pad(x, [(0, 0)] + [(0, max(0, m - n)) for m, n in zip(need, x.shape[1:4])] + [(0, 0)])[:, : need[0], : need[1], : need[2]]
+    y = x.reshape(batch, blocks[0], s, blocks[1], s, blocks[2], s, c).transpose(0, 1, 3, 5, 2, 4, 6, 7)
+    wb = jnp.pad(w, [(0, ka * s - k)] * 3 + [(0, 0), (0, 0)]).reshape(ka, s, ka, s, ka, s, c, f)
+    wb = wb.transpose(1, 3, 5, 6, 0, 2, 4, 7).reshape(s**3 * c, ka**3 * f)  # rows (b, c), columns (a, f)
+    z = (y.reshape(-1, s**3 * c) @ wb).reshape(batch, *blocks, ka, ka, ka, f)
+    shifted = [z[:, i : i + out[0], j : j + out[1], m : m + out[2], i, j, m] for i in range(ka) for j in range(ka) for m in range(ka)]
+    return functools.reduce(jnp.add, shifted)
+
+
 class Conv3D(nn.Module):
-    """A VALID 3-D convolution as strided-slice patches times a 2-D kernel matrix."""
+    """A VALID 3-D convolution as strided-slice patches times a 2-D kernel matrix (`shift`: by
+    `shift_conv3d`, the same map with the faster forward pass and the slower gradient)."""
 
     features: int
     kernel: int
     stride: int
+    shift: bool = False
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         c = x.shape[-1]
         w = self.param("kernel", nn.initializers.lecun_normal(), (self.kernel, self.kernel, self.kernel, c, self.features))
         b = self.param("bias", nn.initializers.zeros, (self.features,))
+        if self.shift:
+            return shift_conv3d(x, w, self.stride) + b
         p = patches3d(x, self.kernel, self.stride)
         y = p.reshape(-1, p.shape[-1]) @ w.reshape(-1, self.features) + b
         return y.reshape(*p.shape[:-1], self.features)
@@ -77,11 +110,12 @@ class Conv3D(nn.Module):
 
 class Encoder3D(nn.Module):
     layers: Sequence[tuple[int, int, int]]
+    shift: bool = False
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         for features, kernel, stride in self.layers:
-            x = nn.relu(Conv3D(features, kernel, stride)(x))
+            x = nn.relu(Conv3D(features, kernel, stride, self.shift)(x))
         return x.reshape(x.shape[0], -1)
 
 
@@ -91,6 +125,7 @@ class GuideNetwork(nn.Module):
     outputs: int
     variant: str = "conv"  # conv | mlp
     hidden: Sequence[int] = (512, 256, 128)
+    shift: bool = False  # convolve by `shift_conv3d` (a deployed guide: forward passes only)
 
     @nn.compact
     def __call__(self, obs: dict[str, jax.Array]) -> jax.Array:
@@ -98,7 +133,7 @@ class GuideNetwork(nn.Module):
         proprio = jnp.concatenate([obs[k].reshape(batch, -1) for k in PROPRIO], axis=-1)
         parts = [nn.elu(nn.Dense(256)(proprio))]
         if self.variant == "conv":
-            parts += [Encoder3D(BPS_HEAD)(obs["bps"]), Encoder3D(MAP_HEAD)(obs["exploration"])]
+            parts += [Encoder3D(BPS_HEAD, self.shift)(obs["bps"]), Encoder3D(MAP_HEAD, self.shift)(obs["exploration"])]
         elif self.variant != "mlp":
             raise ValueError(f"network variant must be 'conv' or 'mlp', got '{self.variant}'")
         x = jnp.concatenate(parts, axis=-1)
@@ -136,10 +171,11 @@ class GuidePolicy(nn.Module):
     actions: int
     variant: str = "conv"
     hidden: Sequence[int] = (512, 256, 128)
+    shift: bool = False
 
     @nn.compact
     def __call__(self, obs: dict[str, jax.Array]) -> jax.Array:
-        loc = GuideNetwork(self.actions, self.variant, self.hidden)(obs)
+        loc = GuideNetwork(self.actions, self.variant, self.hidden, self.shift)(obs)
         scale = self.param("std", nn.initializers.zeros, (self.actions,))
         return jnp.concatenate([loc, jnp.broadcast_to(scale, loc.shape)], axis=-1)
 
@@ -175,6 +211,7 @@ def make_guide_networks(
     hidden: Sequence[int] = DEFAULTS["hidden"],
     std: str = DEFAULTS["std"],
     loc_bound: float | None = DEFAULTS["loc_bound"],
+    shift: bool = False,
 ):
     """brax `network_factory` for `ppo.train`: actor and critic are each a `GuideNetwork` (Table
     3.4; separate parameters), the actor's outputs the mean and scale of brax's tanh-squashed
@@ -182,7 +219,8 @@ def make_guide_networks(
     (`std="global"`, `GuidePolicy`) or an output of the network (`std="state"`).
     `loc_bound` bounds the Gaussian's pre-tanh mean softly to (-loc_bound, loc_bound) (None: unbounded).
     `preprocess_observations_fn` is brax's normaliser (identity by default); `variant`, `hidden`,
-    `std` and `loc_bound` are plain values, so brax's checkpoints record them."""
+    `std` and `loc_bound` are plain values, so brax's checkpoints record them. `shift` convolves by
+    `shift_conv3d` (same parameters, same map): for a deployed guide, never for training."""
     from brax.training import distribution, networks, types
     from brax.training.acme import running_statistics
     from brax.training.agents.ppo.networks import PPONetworks
@@ -198,7 +236,10 @@ def make_guide_networks(
     dist = distribution.NormalTanhDistribution(event_size=action_size)
 
     def network(outputs: int, actor: bool = False):
-        module = GuidePolicy(outputs // 2, variant, hidden) if actor and std == "global" else GuideNetwork(outputs, variant=variant, hidden=hidden)
+        if actor and std == "global":
+            module = GuidePolicy(outputs // 2, variant, hidden, shift)
+        else:
+            module = GuideNetwork(outputs, variant=variant, hidden=hidden, shift=shift)
         dummy = {k: jnp.zeros((1,) + s) for k, s in shapes.items()}
 
         def apply(processor_params, params, obs):

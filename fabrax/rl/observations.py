@@ -48,7 +48,7 @@ def cell_index(x: jax.Array, cells: int, low, high) -> tuple[jax.Array, jax.Arra
 def bps_vectors(scene: Scene, points: jax.Array, clip: float) -> jax.Array:
     """Vectors (..., 3) from each point to the nearest obstacle surface point (eq. 3.16), at most `clip` long."""
     flat = points.reshape(-1, 3)
-    near = nearest_distance(scene, flat.T, jnp.zeros_like(flat.T))
+    near = nearest_distance(scene, flat.T, jnp.zeros_like(flat.T), skip_empty=True)  # scenes padded to a common capacity
     v = -(near.d * near.n).T
     norm = jnp.linalg.norm(v, axis=-1, keepdims=True)
     v = jnp.where(norm > clip, v * clip / jnp.maximum(norm, 1e-9), v)

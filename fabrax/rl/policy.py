@@ -10,6 +10,7 @@ docs/results.md, "The pretrained guide"). A missing or unreadable one is refused
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 from pathlib import Path
 from typing import Any, Callable
@@ -80,7 +81,7 @@ def load_guide(path: str | Path) -> Guide:
             if key not in config.network_factory_kwargs:
                 config.network_factory_kwargs[key] = value
         params = ppo_checkpoint.load(ckpt)
-        network = brax_checkpoint.get_network(config, make_guide_networks)
+        network = brax_checkpoint.get_network(config, functools.partial(make_guide_networks, shift=True))  # acting only
     except Exception as e:  # orbax / json errors of a damaged checkpoint, whatever their type
         first = str(e).strip().splitlines()[0] if str(e).strip() else ""
         raise ValueError(f"{ckpt}: unreadable guide checkpoint ({type(e).__name__}: {first})") from None

@@ -162,20 +162,30 @@ def min_packed(values: jax.Array, offset: float = 2.0, axis: int = -1, unroll: b
     axis innermost, and its consumers recomputed it. The keys are written before the chain: XLA
     fused the slots' distances and keys into it and ran that as scalar code."""
     axis = axis % values.ndim
-    width = values.shape[axis]
+    bits = _index_bits(values.shape[axis])
+    key = _min_key(values, offset, axis, unroll, bits, 0)
+    low = (1 << bits) - 1
+    return key & low, jax.lax.bitcast_convert_type(key & ~low, jnp.float32).astype(values.dtype) - offset
+
+
+def _index_bits(width: int) -> int:
     bits = max(1, int(width - 1).bit_length())
     if bits > 12:
         raise ValueError(f"too many entries ({width}) to pack an index into a float32 mantissa")
+    return bits
+
+
+def _min_key(values: jax.Array, offset: float, axis: int, unroll: bool, bits: int, start: int) -> jax.Array:
+    """The smallest packed key along `axis`: the bits of values + offset with the lowest `bits`
+    replaced by the entry's index plus `start` (see `min_packed`)."""
+    width = values.shape[axis]
     raw = jax.lax.bitcast_convert_type(jnp.maximum(values + offset, 1e-30).astype(jnp.float32), jnp.int32)
-    index = jnp.arange(width, dtype=jnp.int32).reshape((width,) + (1,) * (values.ndim - 1 - axis))
-    low = (1 << bits) - 1
-    keys = (raw & ~low) | index
+    index = start + jnp.arange(width, dtype=jnp.int32).reshape((width,) + (1,) * (values.ndim - 1 - axis))
+    keys = (raw & ~((1 << bits) - 1)) | index
     if unroll and width <= UNROLL_MAX:
         keys = written(keys)  # fused into the chain, the keys of 8 slots ran as scalar code
-        key = written(functools.reduce(jnp.minimum, [jax.lax.index_in_dim(keys, k, axis, keepdims=False) for k in range(width)]))
-    else:
-        key = jnp.min(keys, axis=axis)
-    return key & low, jax.lax.bitcast_convert_type(key & ~low, jnp.float32).astype(values.dtype) - offset
+        return written(functools.reduce(jnp.minimum, [jax.lax.index_in_dim(keys, k, axis, keepdims=False) for k in range(width)]))
+    return jnp.min(keys, axis=axis)
 
 
 class NearestDistance(NamedTuple):
@@ -195,7 +205,7 @@ def _lanes(params: tuple, mask: jax.Array) -> tuple[tuple, jax.Array]:
     return tuple(pad(a) for a in params), jnp.concatenate([mask, jnp.zeros(extra, bool)])
 
 
-def nearest_distance(scene: Scene, x: jax.Array, xd: jax.Array) -> NearestDistance:
+def nearest_distance(scene: Scene, x: jax.Array, xd: jax.Array, skip_empty: bool = False) -> NearestDistance:
     """Distance from each point (3, N) to the whole scene, min over primitives, with its derivatives.
 
     Every (point, slot) distance is computed (values only); the derivatives are
@@ -206,6 +216,12 @@ def nearest_distance(scene: Scene, x: jax.Array, xd: jax.Array) -> NearestDistan
     width (other counts ran as scalar code), so the
     slots are padded to a multiple of LANES here (masked); with the chain the
     padding measured neutral on a 20-cuboid scene and stays.
+
+    skip_empty: each block of LANES slots, and each kind's derivative pass, runs under a
+    `lax.cond` on whether it holds an obstacle, so a scene padded far past its obstacles (a
+    benchmark's common capacity) costs what its obstacles cost. For many points against one
+    scene (a basis point set); under `vmap` over scenes the conds become selects that run both
+    branches, and for a few points their overhead outweighs the slots they skip.
     """
     c, y, s, pc = scene.cuboids, scene.cylinders, scene.spheres, scene.cloud
     kinds = [
@@ -219,16 +235,50 @@ def nearest_distance(scene: Scene, x: jax.Array, xd: jax.Array) -> NearestDistan
         k = mask.shape[0]
         if k:
             params, mask = _lanes(params, mask)
-            d_all = jnp.where(mask[:, None], fn(*params, x[:, None, :], xd[:, None, :])[0], FAR)  # (K, N), values only
-            idx = min_packed(d_all, axis=0, unroll=True)[0]  # (N,): minima of the slots' rows, along the points
-            d, n, rate, curv = fn(*(a[idx] for a in params), x[:, :, None], xd[:, :, None])
-            cand = NearestDistance(jnp.where(mask[idx], d[:, 0], FAR), n[:, :, 0], rate[:, 0], curv[:, 0], idx + start)
+            idx = _nearest_slots(fn, params, mask, x, xd, skip_empty)
+
+            def near(idx=idx, fn=fn, params=params, mask=mask, start=start):
+                d, n, rate, curv = fn(*(a[idx] for a in params), x[:, :, None], xd[:, :, None])
+                return NearestDistance(jnp.where(mask[idx], d[:, 0], FAR), n[:, :, 0], rate[:, 0], curv[:, 0], idx + start)
+
+            if skip_empty:
+
+                def far(idx=idx, start=start):
+                    z = jnp.zeros(idx.shape, x.dtype)
+                    return NearestDistance(z + FAR, jnp.zeros_like(x), z, z, idx + start)
+
+                cand = jax.lax.cond(jnp.any(mask), near, far)
+            else:
+                cand = near()
             best = cand if best is None else jax.tree.map(lambda a, b: jnp.where(cand.d < best.d, a, b), cand, best)
         start += k
     if best is None:
         z = jnp.zeros(x.shape[1], x.dtype)
         return NearestDistance(z + FAR, jnp.zeros_like(x), z, z, jnp.zeros(x.shape[1], jnp.int32))
     return best
+
+
+def _nearest_slots(fn, params: tuple, mask: jax.Array, x: jax.Array, xd: jax.Array, skip_empty: bool) -> jax.Array:
+    """(N,) index of each point's nearest slot of one kind (values only; `nearest_distance`)."""
+    k = mask.shape[0]
+    if not skip_empty:
+        d_all = jnp.where(mask[:, None], fn(*params, x[:, None, :], xd[:, None, :])[0], FAR)  # (K, N)
+        return min_packed(d_all, axis=0, unroll=True)[0]  # minima of the slots' rows, along the points
+    bits = _index_bits(k)
+    none = jnp.full(x.shape[1:], jnp.iinfo(jnp.int32).max, jnp.int32)  # larger than any packed key
+
+    def block(lo: int) -> jax.Array:
+        hi = min(k, lo + LANES)
+        sub, live = tuple(a[lo:hi] for a in params), mask[lo:hi]
+
+        def keys():
+            d = jnp.where(live[:, None], fn(*sub, x[:, None, :], xd[:, None, :])[0], FAR)
+            return _min_key(d, 2.0, 0, True, bits, lo)
+
+        return jax.lax.cond(jnp.any(live), keys, lambda: none)
+
+    key = functools.reduce(jnp.minimum, [block(lo) for lo in range(0, k, LANES)])
+    return jnp.minimum(key & ((1 << bits) - 1), k - 1)  # no block live: any slot, masked
 
 
 def primitive_mask(scene: Scene) -> jax.Array:
