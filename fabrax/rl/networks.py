@@ -46,12 +46,18 @@ GRIDS = ("bps", "exploration")  # 3-D inputs: given to PPO as "pixels/<name>", w
 PROPRIO = ("goal_keypoints", "q", "hand_keypoints", "fabric_q", "fabric_qd", "fabric_qdd", "dynamic_bps", "switch")
 
 
+def _valid_out(spatial: tuple[int, ...], kernel: int, stride: int) -> list[int]:
+    """Output sides of a VALID convolution, refused in one line where the input is smaller than the kernel."""
+    out = [(n - kernel) // stride + 1 for n in spatial]
+    if min(out) < 1:
+        raise ValueError(f"input of spatial shape {tuple(spatial)} is smaller than the kernel {kernel}")
+    return out
+
+
 def patches3d(x: jax.Array, kernel: int, stride: int) -> jax.Array:
     """(B, D, H, W, C) -> (B, D', H', W', kernel^3 C): each VALID output voxel's input patch,
     ordered (offset along D, H, W, then channel) like a (k, k, k, C, F) kernel's rows."""
-    out = [(n - kernel) // stride + 1 for n in x.shape[1:4]]
-    if min(out) < 1:
-        raise ValueError(f"input of spatial shape {x.shape[1:4]} is smaller than the kernel {kernel}")
+    out = _valid_out(x.shape[1:4], kernel, stride)
     parts = [
         x[:, i : i + stride * (out[0] - 1) + 1 : stride, j : j + stride * (out[1] - 1) + 1 : stride, k : k + stride * (out[2] - 1) + 1 : stride]
         for i in range(kernel)
@@ -72,9 +78,7 @@ def shift_conv3d(x: jax.Array, w: jax.Array, stride: int) -> jax.Array:
     zero weights)."""
     k, c, f = w.shape[0], w.shape[3], w.shape[4]
     s, batch = stride, x.shape[0]
-    out = [(n - k) // s + 1 for n in x.shape[1:4]]
-    if min(out) < 1:
-        raise ValueError(f"input of spatial shape {x.shape[1:4]} is smaller than the kernel {k}")
+    out = _valid_out(x.shape[1:4], k, s)
     ka = -(-k // s)  # kernel blocks per axis
     blocks = [o + ka - 1 for o in out]
     need = [b * s for b in blocks]
