@@ -53,6 +53,8 @@ MBM_ROWS = {  # row label in the table -> method label in the JSON (experiments/
     "GFCS, 5 batches of 64": "gfcs",
     "GFCS, 1 batch": "gfcs (1 b)",
     "GFCS, 5 batches, constant hand metric (`method.hand_mass=5.304`)": "gfcs_hand",
+    "GFCS, learned sampler (Algorithm 2 on train 1–50), hand metric, 5 batches": "gfcs_learned",
+    "GFCS, learned sampler, hand metric, 1 batch": "gfcs_learned (1 b)",
     "RRTConnect 1.2 s": "rrtconnect (1.2 s)",
     "Bi-EST 1.2 s": "biest (1.2 s)",
     "BIT* 1.2 s": "bitstar (1.2 s)",
@@ -217,8 +219,13 @@ TABLES = {
                 f"{MBM_BENCH} method=biest {SIX} out=bench_out/mbm/biest",
                 f"{MBM_BENCH} method=bitstar {SIX} out=bench_out/mbm/bitstar",
                 f"{MBM_BENCH} method=aitstar {SIX} out=bench_out/mbm/aitstar",
-                "python experiments/bench_table.py bench_out/mbm/* --out docs/results/mbm",
-            ),
+            )
+            + tuple(
+                f"python experiments/gfcs.py class_name={c} reactive.n_obstacles=0 method.hand_mass=5.304 evaluate=[gfcs_learned] "
+                f"progress=false hydra.run.dir=bench_out/mbm_learned/{c}"
+                for c in MBM_CLASSES
+            )
+            + ("python experiments/bench_table.py bench_out/mbm/* bench_out/mbm_learned/* --out docs/results/mbm",),
             {"main": mbm_success, "detail": mbm_detail},
             "mbm",
         ),
