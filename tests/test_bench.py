@@ -280,6 +280,38 @@ def test_ompl_rrtconnect_through_the_cli(tmp_path):
         assert not row["collision"] and row["duration_s"] > 0
 
 
+_SEEDED_PLANS = """
+import json, os
+from fabrax import config
+from fabrax.bench.ompl import plan
+from fabrax.problems import procedural
+from fabrax.problems.load import with_ik_goal
+robot = config.load_robot("panda")
+p = with_ik_goal(robot, procedural.generate(robot, "mbm_like", ["cage"], 1, 3)[0], robot.ee_frame)
+runs = [plan(robot, p, "RRTConnect", 60.0, False, 1 / 32, max_states=budget, seed=5) for budget in (400_000, 400_000, 50)]
+print(json.dumps([[None if path is None else path.tolist(), info["states_checked"]] for path, info in runs]))
+os._exit(0)  # OMPL 1.7.0's module crashes at interpreter shutdown
+"""
+
+
+@pytest.mark.skipif(importlib.util.find_spec("ompl") is None, reason="OMPL is not installed (pip install -e '.[bench]')")
+def test_ompl_seeded_state_budget_is_deterministic():
+    """The solvability filter's planner run (seed and a budget of checked states) gives the same
+    path in another process, and stops once its budget of states is spent."""
+    run = lambda: subprocess.run([sys.executable, "-c", _SEEDED_PLANS], check=True, capture_output=True, text=True, timeout=600)  # noqa: E731
+    runs = [json.loads(run().stdout) for _ in range(2)]
+    (a, sa), (b, sb), (tiny, st) = runs[0]
+    assert a is not None and a == b == runs[1][0][0] and sa == sb == runs[1][0][1]  # same path, same work, both processes
+    assert tiny is None and 50 <= st < 50 + 500  # ended at its budget (plus the motion being checked), without a path
+
+
+def test_solvable_key_names_the_deterministic_budget():
+    from fabrax.problems.load import SOLVABLE_STATES_PER_S, solvable_key, solvable_states
+
+    assert solvable_states(10.0) == 10 * SOLVABLE_STATES_PER_S
+    assert f"{solvable_states(10.0):,} checked states" in solvable_key(10.0) and solvable_key(10.0) != solvable_key(20.0)
+
+
 def test_bench_cli_gfcs_reports_batch_variants(tmp_path):
     from fabrax.bench.cli import main
 

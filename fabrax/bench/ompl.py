@@ -58,15 +58,35 @@ class _Checker:
         return self.native.all_valid(dense)
 
 
-def plan(robot: Robot, problem: Problem, planner: str, budget_s: float, simplify: bool, resolution: float, first_solution: bool = False):
+def plan(
+    robot: Robot,
+    problem: Problem,
+    planner: str,
+    budget_s: float,
+    simplify: bool,
+    resolution: float,
+    first_solution: bool = False,
+    max_states: int | None = None,
+    seed: int | None = None,
+):
     """A collision-free joint path (W, n) from start to the joint goal, or None; and info. With
     `first_solution`, an optimising planner (AIT*, BIT*, RRT*) stops at its first solution instead
     of refining it until the budget ends (success within the budget is the same; the time is the
-    time to a first solution)."""
+    time to a first solution).
+
+    Deterministic runs: `max_states` ends the search once the checker has checked that many
+    states (instead of after `budget_s`, which then does not apply), and `seed` (> 0) re-seeds
+    OMPL's generator of random seeds first, so the same problem gives the same path on any machine
+    at any load."""
     from ompl import base as ob
     from ompl import geometric as og
     from ompl import util as ou
 
+    if seed is not None:
+        if seed <= 0:
+            raise ValueError(f"seed must be a positive integer (OMPL's RNG.setSeed), got {seed}")
+        ou.setLogLevel(ou.LOG_NONE)  # re-seeding after the first RNG logs an error, but takes effect
+        ou.RNG.setSeed(int(seed))
     ou.setLogLevel(ou.LOG_ERROR)
     if not hasattr(og, planner):
         raise ValueError(
@@ -111,7 +131,10 @@ def plan(robot: Robot, problem: Problem, planner: str, budget_s: float, simplify
     p.setProblemDefinition(pdef)
     p.setup()
     t0 = time.perf_counter()
-    status = p.solve(budget_s)
+    if max_states is not None:
+        status = p.solve(ob.PlannerTerminationCondition(ob.PlannerTerminationConditionFn(lambda: check.states >= max_states)))
+    else:
+        status = p.solve(budget_s)
     solve_s = time.perf_counter() - t0
     info = {
         "planner": planner,
@@ -134,13 +157,18 @@ def plan(robot: Robot, problem: Problem, planner: str, budget_s: float, simplify
 
 def solvable(budget_s: float):
     """check(robot, problem) -> bool: RRTConnect finds a path from the start to the generator's goal
-    configuration (`meta["goal_q"]`) within budget_s under the exact checker (the MπNets-faithful
-    set's filter, `fabrax.problems.load`)."""
+    configuration (`meta["goal_q"]`) under the exact checker within budget_s reference seconds (the
+    MπNets-faithful set's filter, `fabrax.problems.load`): a budget of checked states from a fixed
+    seed, so the verdict does not depend on the machine or its load."""
+    from fabrax.problems.load import SOLVABLE_SEED, solvable_states
+
+    states = solvable_states(budget_s)
 
     def check(robot: Robot, p: Problem) -> bool:
         import dataclasses
 
-        path, _ = plan(robot, dataclasses.replace(p, goal_q=np.asarray(p.meta["goal_q"])), "RRTConnect", budget_s, False, 1.0 / 32.0)
+        q_goal = np.asarray(p.meta["goal_q"])
+        path, _ = plan(robot, dataclasses.replace(p, goal_q=q_goal), "RRTConnect", budget_s, False, 1.0 / 32.0, max_states=states, seed=SOLVABLE_SEED)
         return path is not None
 
     return check

@@ -21,6 +21,11 @@ KINDS = ("mbm", "mpinets", "mbm_like", "mpinets_like")
 
 # solvable(budget_s) -> check(robot, problem) -> bool: a global planner's verdict within budget_s
 Solvable = Callable[[float], Callable[[Robot, Problem], bool]]
+# The solvability budget is counted in states the checker checks, not in wall time, so that a set is
+# the same on any machine at any load: budget_s seconds are budget_s * SOLVABLE_STATES_PER_S states
+# (the 2-core reference machine's rate, docs/bench.md), searched from OMPL's seed SOLVABLE_SEED.
+SOLVABLE_STATES_PER_S = 200_000
+SOLVABLE_SEED = 1
 
 
 def load_problems(cfg: dict, robot: Robot, info: dict | None = None, solvable: Solvable | None = None) -> list[Problem]:
@@ -49,9 +54,14 @@ def load_problems(cfg: dict, robot: Robot, info: dict | None = None, solvable: S
     raise ValueError(f"problems must be one of {', '.join(KINDS)}, got {kind!r}")
 
 
+def solvable_states(budget_s: float) -> int:
+    """The solvability budget of `budget_s` reference seconds, in checked states."""
+    return int(round(float(budget_s) * SOLVABLE_STATES_PER_S))
+
+
 def solvable_key(budget_s: float) -> str:
     """The name of the solvability check in the MπNets-faithful set's cache key."""
-    return f"RRTConnect {float(budget_s)} s, exact checker"
+    return f"RRTConnect {float(budget_s)} s = {solvable_states(budget_s):,} checked states, seed {SOLVABLE_SEED}, exact checker"
 
 
 def mpinets_set(cfg: dict, robot: Robot, progress: bool | None = None, solvable: Solvable | None = None):
