@@ -7,7 +7,7 @@ One command measures, each with its compile time apart:
 - ppo: brax PPO env steps/s with the thesis network (conv encoders, MLP 512-256-128) at 4,096 envs;
 - gfcs: GFCS (configs/method/gfcs.yaml) on K MotionBenchMaker train problems solved together
   (`fabrax.planners.gfcs.solve_batch`), time per batch and per problem; generated MBM-like problems
-  where `FABRAX_DATA` is not set;
+  where `FABRAX_DATA` is not set; `--gfcs method.shrink=1` (repeatable) overrides the method;
 - geodesics: batches of 256 and 4,096 spline geodesics on a J/C task-space skill (a short VAE fit:
   the timing needs a trained decoder, not a good one).
 
@@ -133,7 +133,7 @@ def section_ppo(spec, emit, run_dir: Path) -> None:
     )
 
 
-def section_gfcs(sizes, emit) -> None:
+def section_gfcs(sizes, emit, overrides: list[str] = ()) -> None:
     import jax
     import numpy as np
 
@@ -145,7 +145,7 @@ def section_gfcs(sizes, emit) -> None:
     from fabrax.scene import common_capacity
 
     kind = "mbm" if os.environ.get("FABRAX_DATA") else "mbm_like"
-    cfg = cli.compose(["method=gfcs", f"problems={kind}", "split=train", f"limit={max(1, -(-max(sizes) // 6))}", "progress=false"])
+    cfg = cli.compose(["method=gfcs", f"problems={kind}", "split=train", f"limit={max(1, -(-max(sizes) // 6))}", "progress=false", *overrides])
     robot = config.load_robot(config.robot_choice(cfg))
     t0 = time.perf_counter()
     problems = [p for p in cli.load_problems(cfg, robot) if p.valid and p.goal_q is not None]
@@ -172,6 +172,7 @@ def section_gfcs(sizes, emit) -> None:
                 "per_problem_ms": 1e3 * sum(walls) / k,
                 "batches": len(walls),
                 "population": gcfg.population,
+                "shrink": gcfg.shrink,
                 "arrived_clean": f"{clean}/{k}",
                 "setup_s": setup_s,
             }
@@ -212,7 +213,7 @@ def section_geodesics(sizes, emit) -> None:
         emit({**row, "setup_s": setup_s})
 
 
-def child(section: str, sizes_name: str, rows_file: Path, work: Path) -> None:
+def child(section: str, sizes_name: str, rows_file: Path, work: Path, gfcs: list[str] = ()) -> None:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import fabrax  # noqa: F401  (XLA flags before jax)
 
@@ -225,7 +226,7 @@ def child(section: str, sizes_name: str, rows_file: Path, work: Path) -> None:
     elif section == "ppo":
         section_ppo(sizes, emit, work / "ppo_run")
     elif section == "gfcs":
-        section_gfcs(sizes, emit)
+        section_gfcs(sizes, emit, gfcs)
     elif section == "geodesics":
         section_geodesics(sizes, emit)
 
@@ -252,7 +253,7 @@ def slices(remaining: float, sections: list[str]) -> float:
     return remaining * WEIGHTS[sections[0]] / sum(WEIGHTS[s] for s in sections)
 
 
-def run_sections(sections: list[str], sizes: str, budget: float, out: Path) -> list[dict]:
+def run_sections(sections: list[str], sizes: str, budget: float, out: Path, gfcs: list[str] = ()) -> list[dict]:
     """Run each section in a child process within its slice of the budget; one status row each."""
     statuses = []
     deadline = time.monotonic() + budget
@@ -264,6 +265,7 @@ def run_sections(sections: list[str], sizes: str, budget: float, out: Path) -> l
         work = out / "work"
         work.mkdir(parents=True, exist_ok=True)
         cmd = [sys.executable, str(Path(__file__).resolve()), "--child", section, "--sizes", sizes, "--rows", str(rows_file), "--work", str(work)]
+        cmd += [f"--gfcs={o}" for o in gfcs]
         t0 = time.monotonic()
         status = "ok"
         if limit < 1.0:
@@ -310,12 +312,13 @@ def main() -> None:
     ap.add_argument("--budget", type=float, default=420.0, help="wall seconds for all sections together")
     ap.add_argument("--sizes", default="auto", choices=["auto", "gpu", "cpu"])
     ap.add_argument("--sections", default=",".join(SECTIONS), help=f"comma-separated, from {', '.join(SECTIONS)}")
+    ap.add_argument("--gfcs", action="append", default=[], help="an override of the gfcs section's method (repeatable), e.g. --gfcs method.shrink=1")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--rows", type=Path, help=argparse.SUPPRESS)
     ap.add_argument("--work", type=Path, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
-        child(args.child, args.sizes, args.rows, args.work)
+        child(args.child, args.sizes, args.rows, args.work, args.gfcs)
         return
     sections = [s.strip() for s in args.sections.split(",") if s.strip()]
     unknown = [s for s in sections if s not in SECTIONS]
@@ -332,7 +335,7 @@ def main() -> None:
     sizes = args.sizes if args.sizes != "auto" else ("cpu" if info["backend"] == "cpu" else "gpu")
     cache = Path(info["compile_cache"]) if info["compile_cache"] else None
     cached = sum(1 for _ in cache.iterdir()) if cache and cache.is_dir() else 0
-    statuses = run_sections(sections, sizes, args.budget - (time.monotonic() - t0), args.out)
+    statuses = run_sections(sections, sizes, args.budget - (time.monotonic() - t0), args.out, args.gfcs)
     meta = {
         **info,
         "device": info["device"] if info["backend"] != "cpu" else f"CPU ({os.cpu_count()} cores, {info['devices']} devices)",

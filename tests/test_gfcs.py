@@ -463,3 +463,9 @@ def test_hand_mass_makes_the_hand_metric_constant_in_the_rollouts(fabric_params,
     assert not np.allclose(np.asarray(light.q), np.asarray(held.q), atol=1e-4)
     with pytest.raises(ValueError, match="hand_mass must be a positive mass"):
         GFCSConfig(hand_mass=0.0)
+
+
+@pytest.mark.parametrize("shrink", [0, -2, 1.5, True])
+def test_gfcs_shrink_must_be_a_positive_integer(shrink):
+    with pytest.raises(ValueError, match="shrink must be a positive integer"):
+        GFCSConfig(shrink=shrink)

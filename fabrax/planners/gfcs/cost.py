@@ -65,6 +65,7 @@ def population_cost(
     length_weight: float = 0.0,
     goal: str = "joint",
     hand_mass: float | None = None,
+    shrink: int = 4,
 ) -> tuple[jax.Array, Trajectory]:
     """GFCOP costs of candidates zs (P, n, dof) and their trajectories, rolled out together.
 
@@ -80,6 +81,9 @@ def population_cost(
     goal: "joint" (eq. 6: the last command is the joint goal) or "pose" (the last segment aims the
     hand at the goal pose and ends at the pose test; see the module docstring).
     hand_mass: the end-effector attractor's mass far from its target in every segment (`with_hand_mass`).
+    shrink: once at most 1/shrink of the candidates still run, they go on alone as a smaller batch
+    (`rollout_population`; 1: never). Each batch size is one more loop to compile: 4 runs a
+    population of 64 as 64 then 16 arms, 2 as 64, 32 and 16 (docs/gfcs.md compares them).
     """
     if goal not in GOALS:
         raise ValueError(f"goal must be one of {GOALS}, got {goal!r}")
@@ -108,6 +112,7 @@ def population_cost(
         dt=dt,
         steps=steps,
         shared=params,
+        shrink=shrink,
     )
     costs = jnp.sum(trajs.segment_times, axis=-1) + penalty * (~trajs.reached) + collision_penalty * (trajs.min_clearance < 0.0)
     if length_weight:

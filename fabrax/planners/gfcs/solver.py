@@ -48,12 +48,15 @@ class GFCSConfig:
     direct: bool = True  # the first batch's first candidate commands the start: the fabric aimed straight at the goal
     hand_mass: float | None = None  # the hand attractor's far mass in the rollouts (`with_hand_mass`; None: the fabric's)
     goal: str = "joint"  # "pose": the last segment aims the hand at the goal pose (pose goals need no IK; `population_cost`)
+    shrink: int = 4  # the rollout's batch shrinks to 1/shrink of the population once at most that many still run (1: never)
 
     def __post_init__(self):
         if self.goal not in GOALS:
             raise ValueError(f"GFCS goal must be one of {GOALS}, got {self.goal!r}")
         if self.hand_mass is not None and not self.hand_mass > 0:
             raise ValueError(f"GFCS hand_mass must be a positive mass (or null), got {self.hand_mass!r}")
+        if isinstance(self.shrink, bool) or not isinstance(self.shrink, int) or self.shrink < 1:
+            raise ValueError(f"GFCS shrink must be a positive integer (1: never shrink), got {self.shrink!r}")
 
     @property
     def enough(self) -> int | None:
@@ -99,6 +102,7 @@ def _evaluate(fabric, params: Params, problem: ProblemBatch, pop: jax.Array, cfg
         length_weight=cfg.length_weight,
         goal=cfg.goal,
         hand_mass=cfg.hand_mass,
+        shrink=cfg.shrink,
     )
     k = jnp.argmin(costs)
     return costs, jax.tree.map(lambda a: a[k], trajs)
