@@ -342,6 +342,7 @@ def main() -> None:
         "budget_s": args.budget,
         "wall_s": time.monotonic() - t0,
         "sizes": sizes,
+        "gfcs_overrides": args.gfcs,
         "machine": platform.platform(),
         "compile_cache_entries_at_start": cached,  # 0: every compile_s is a cold compile
     }
