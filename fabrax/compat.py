@@ -8,6 +8,15 @@ jax's own implementation where jax still ships it, else the same replication by 
 value stacked once per device, sharded along the new leading axis). Everything in fabrax that
 trains with brax imports PPO through here.
 
+brax's observation normaliser starts with `std_eps` a Python float, which becomes a weakly typed
+array in the replicated training state, while every update returns it strongly typed: the
+evaluation unroll, compiled first with the initial parameters, was traced and compiled a second
+time at the first evaluation after training began. `brax_ppo()` makes the initial `std_eps` a
+strongly typed array of the statistics' dtype, the type every update returns. Its evaluator also
+starts from an environment state that is not committed to a device, and every later evaluation
+from the committed state the unroll returned: the same program was lowered and compiled twice.
+`brax_ppo()` commits the first state to the device the unroll's outputs live on.
+
 mujoco-mjx 3.17 prints "Failed to import warp" and "Failed to import mujoco_warp" when it is
 imported without the optional NVIDIA Warp backend, which fabrax does not use; `quiet_mjx()` imports
 it once with those two lines dropped (anything else it prints is printed).
@@ -16,6 +25,7 @@ it once with those two lines dropped (anything else it prints is printed).
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
 import sys
 from typing import Sequence
@@ -54,9 +64,50 @@ def ensure_device_put_replicated() -> None:
         jax.device_put_replicated = fn
 
 
+def strong_normaliser_init() -> None:
+    """brax's `running_statistics.init_state` with `std_eps` an array of the statistics' dtype (see
+    the module docstring); idempotent."""
+    from brax.training.acme import running_statistics as rs
+
+    if getattr(rs.init_state, "strong_std_eps", False):
+        return
+    original = rs.init_state
+
+    @functools.wraps(original)
+    def init_state(*args, **kwargs):
+        state = original(*args, **kwargs)
+        dtype = jax.numpy.float64 if jax.config.jax_enable_x64 else jax.numpy.float32
+        return state.replace(std_eps=jax.numpy.asarray(state.std_eps, dtype))
+
+    init_state.strong_std_eps = True
+    rs.init_state = init_state
+
+
+def committed_eval_state() -> None:
+    """brax's `acting.Evaluator` with its first environment state committed to the first local
+    device, where the unroll's outputs live (see the module docstring); idempotent, and a no-op on a
+    brax whose evaluator keeps no such state."""
+    from brax.training import acting
+
+    if getattr(acting.Evaluator.__init__, "commits_state", False):
+        return
+    original = acting.Evaluator.__init__
+
+    @functools.wraps(original)
+    def __init__(self, *args, **kwargs):
+        original(self, *args, **kwargs)
+        if hasattr(self, "_eval_state_to_donate"):
+            self._eval_state_to_donate = jax.device_put(self._eval_state_to_donate, jax.local_devices()[0])
+
+    __init__.commits_state = True
+    acting.Evaluator.__init__ = __init__
+
+
 def brax_ppo():
     """brax's PPO training module (`brax.training.agents.ppo.train`), usable on this jax."""
     ensure_device_put_replicated()
+    strong_normaliser_init()
+    committed_eval_state()
     from brax.training.agents.ppo import train as ppo
 
     return ppo

@@ -111,6 +111,39 @@ def test_device_put_replicated_for_brax():
         np.testing.assert_allclose(np.asarray(summed), np.full(len(devices), 18.0))
 
 
+def test_brax_evaluation_compiles_its_unroll_once():
+    """After `brax_ppo()`: the normaliser's initial `std_eps` is typed as every update returns it,
+    and brax's evaluator, run first from its own initial state and then from the state its unroll
+    returned, with committed parameters as PPO passes them, compiles the unroll once (it compiled
+    twice: the first state was not committed to a device)."""
+    from brax import envs
+    from brax.envs.base import Env, State
+    from brax.training import acting
+    from brax.training.acme import running_statistics
+
+    compat.brax_ppo()
+    state = running_statistics.init_state(jnp.zeros(3))
+    assert not jax.eval_shape(lambda s: s, state).std_eps.weak_type
+
+    class Toy(Env):
+        observation_size, action_size, backend = 2, 2, "toy"
+
+        def reset(self, rng):
+            z = jnp.zeros(())
+            return State(pipeline_state=None, obs=jnp.zeros(2), reward=z, done=z, metrics={"x": z}, info={})
+
+        def step(self, s, action):
+            return s.replace(obs=s.obs + action, reward=jnp.sum(action), metrics={**s.metrics, "x": s.metrics["x"] + 1.0})
+
+    policy = lambda w: lambda obs, key: (w * jnp.ones_like(obs), {})  # noqa: E731
+    env = envs.training.wrap(Toy(), episode_length=4)
+    ev = acting.Evaluator(env, policy, num_eval_envs=2, episode_length=4, action_repeat=1, key=jax.random.PRNGKey(0))
+    params = jax.device_put(jnp.float32(0.5), jax.local_devices()[0])
+    for _ in range(3):
+        ev.run_evaluation(params, {})
+    assert ev._generate_eval_unroll._cache_size() == 1
+
+
 def test_importing_the_rl_guide_prints_no_optional_backend_notices():
     """mujoco-mjx prints two "Failed to import warp" lines without NVIDIA Warp; fabrax drops them."""
     out = subprocess.run(
