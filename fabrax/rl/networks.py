@@ -27,6 +27,7 @@ pass is the faster one on the CPU, its gradient the slower (docs/results.md, "Re
 from __future__ import annotations
 
 import functools
+import math
 from typing import Sequence
 
 import jax
@@ -91,6 +92,18 @@ def shift_conv3d(x: jax.Array, w: jax.Array, stride: int) -> jax.Array:
     return functools.reduce(jnp.add, shifted)
 
 
+def _as_matrix(init):
+    """`init` drawn as the (prod(shape[:-1]), shape[-1]) matrix the kernel is applied as, reshaped:
+    the same fan-in and, as jax draws the bits of the flat array, the same values as a draw of the
+    5-D shape, whose XLA program compiles far more slowly on a CPU (every PPO start initialises
+    the networks)."""
+
+    def matrix_init(key, shape, dtype=jnp.float32):
+        return init(key, (math.prod(shape[:-1]), shape[-1]), dtype).reshape(shape)
+
+    return matrix_init
+
+
 class Conv3D(nn.Module):
     """A VALID 3-D convolution as strided-slice patches times a 2-D kernel matrix (`shift`: by
     `shift_conv3d`, the same map with the faster forward pass and the slower gradient)."""
@@ -103,7 +116,7 @@ class Conv3D(nn.Module):
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         c = x.shape[-1]
-        w = self.param("kernel", nn.initializers.lecun_normal(), (self.kernel, self.kernel, self.kernel, c, self.features))
+        w = self.param("kernel", _as_matrix(nn.initializers.lecun_normal()), (self.kernel, self.kernel, self.kernel, c, self.features))
         b = self.param("bias", nn.initializers.zeros, (self.features,))
         if self.shift:
             return shift_conv3d(x, w, self.stride) + b
@@ -254,7 +267,8 @@ def make_guide_networks(
                 out = jnp.concatenate([loc_bound * jnp.tanh(loc / loc_bound), scale], axis=-1)
             return out
 
-        return networks.FeedForwardNetwork(init=lambda key: module.init(key, dummy), apply=apply)
+        # one compiled program for the whole initialisation, not one per operation of the forward pass
+        return networks.FeedForwardNetwork(init=jax.jit(lambda key: module.init(key, dummy)), apply=apply)
 
     policy, value = network(dist.param_size, actor=True), network(1)
     value_apply = value.apply
