@@ -114,8 +114,8 @@ def test_device_put_replicated_for_brax():
 def test_brax_evaluation_compiles_its_unroll_once():
     """After `brax_ppo()`: the normaliser's initial `std_eps` is typed as every update returns it,
     and brax's evaluator, run first from its own initial state and then from the state its unroll
-    returned, with committed parameters as PPO passes them, compiles the unroll once (it compiled
-    twice: the first state was not committed to a device)."""
+    returned, with committed parameters as PPO passes them, lowers and compiles the unroll once (it
+    did twice: the first state was not committed to a device)."""
     from brax import envs
     from brax.envs.base import Env, State
     from brax.training import acting
@@ -139,9 +139,17 @@ def test_brax_evaluation_compiles_its_unroll_once():
     env = envs.training.wrap(Toy(), episode_length=4)
     ev = acting.Evaluator(env, policy, num_eval_envs=2, episode_length=4, action_repeat=1, key=jax.random.PRNGKey(0))
     params = jax.device_put(jnp.float32(0.5), jax.local_devices()[0])
-    for _ in range(3):
-        ev.run_evaluation(params, {})
-    assert ev._generate_eval_unroll._cache_size() == 1
+    lowered = []
+    listener = lambda event, secs, **kw: lowered.append(event) if event.endswith("jaxpr_to_mlir_module_duration") else None  # noqa: E731
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        ev.run_evaluation(params, {})  # lowers the unroll (and whatever else runs for the first time)
+        first = len(lowered)
+        for _ in range(2):  # from the state the unroll returned: nothing is lowered again
+            ev.run_evaluation(params, {})
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listener)
+    assert first >= 1 and len(lowered) == first
 
 
 def test_importing_the_rl_guide_prints_no_optional_backend_notices():
