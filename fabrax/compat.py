@@ -14,8 +14,9 @@ evaluation unroll, compiled first with the initial parameters, was traced and co
 time at the first evaluation after training began. `brax_ppo()` makes the initial `std_eps` a
 strongly typed array of the statistics' dtype, the type every update returns. Its evaluator also
 starts from an environment state that is not committed to a device, and every later evaluation
-from the committed state the unroll returned: the same program was lowered and compiled twice.
-`brax_ppo()` commits the first state to the device the unroll's outputs live on.
+from the committed state the unroll returned (replicated like the policy parameters, over every
+device of a multi-device run): the same program was lowered and compiled twice. `brax_ppo()`
+places the first state as the parameters are placed before the first evaluation.
 
 mujoco-mjx 3.17 prints "Failed to import warp" and "Failed to import mujoco_warp" when it is
 imported without the optional NVIDIA Warp backend, which fabrax does not use; `quiet_mjx()` imports
@@ -84,23 +85,28 @@ def strong_normaliser_init() -> None:
 
 
 def committed_eval_state() -> None:
-    """brax's `acting.Evaluator` with its first environment state committed to the first local
-    device, where the unroll's outputs live (see the module docstring); idempotent, and a no-op on a
-    brax whose evaluator keeps no such state."""
+    """brax's `acting.Evaluator` with its first environment state placed, at the first evaluation,
+    where the unroll's outputs will live: replicated like the policy parameters it is given (one
+    device, or every device of a multi-device run; see the module docstring). Idempotent, and a
+    no-op on a brax whose evaluator keeps no such state."""
     from brax.training import acting
 
-    if getattr(acting.Evaluator.__init__, "commits_state", False):
+    if getattr(acting.Evaluator.run_evaluation, "commits_state", False):
         return
-    original = acting.Evaluator.__init__
+    original = acting.Evaluator.run_evaluation
 
     @functools.wraps(original)
-    def __init__(self, *args, **kwargs):
-        original(self, *args, **kwargs)
-        if hasattr(self, "_eval_state_to_donate"):
-            self._eval_state_to_donate = jax.device_put(self._eval_state_to_donate, jax.local_devices()[0])
+    def run_evaluation(self, policy_params, *args, **kwargs):
+        state = getattr(self, "_eval_state_to_donate", None)
+        leaf = next(iter(jax.tree.leaves(policy_params)), None)
+        sharding = getattr(leaf, "sharding", None)
+        first = next(iter(jax.tree.leaves(state)), None)
+        if sharding is not None and sharding.is_fully_replicated and getattr(leaf, "committed", False) and not getattr(first, "committed", True):
+            self._eval_state_to_donate = jax.device_put(state, sharding)
+        return original(self, policy_params, *args, **kwargs)
 
-    __init__.commits_state = True
-    acting.Evaluator.__init__ = __init__
+    run_evaluation.commits_state = True
+    acting.Evaluator.run_evaluation = run_evaluation
 
 
 def brax_ppo():

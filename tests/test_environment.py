@@ -111,45 +111,56 @@ def test_device_put_replicated_for_brax():
         np.testing.assert_allclose(np.asarray(summed), np.full(len(devices), 18.0))
 
 
-def test_brax_evaluation_compiles_its_unroll_once():
+_BRAX_EVALUATION = """
+import json
+import jax, jax.numpy as jnp
+from fabrax import compat
+compat.brax_ppo()
+from brax import envs
+from brax.envs.base import Env, State
+from brax.training import acting
+from brax.training.acme import running_statistics
+
+class Toy(Env):
+    observation_size, action_size, backend = 2, 2, "toy"
+
+    def reset(self, rng):
+        z = jnp.zeros(())
+        return State(pipeline_state=None, obs=jnp.zeros(2), reward=z, done=z, metrics={"x": z}, info={})
+
+    def step(self, s, action):
+        return s.replace(obs=s.obs + action, reward=jnp.sum(action), metrics={**s.metrics, "x": s.metrics["x"] + 1.0})
+
+policy = lambda w: lambda obs, key: (w * jnp.ones_like(obs), {})
+env = envs.training.wrap(Toy(), episode_length=4)
+ev = acting.Evaluator(env, policy, num_eval_envs=2, episode_length=4, action_repeat=1, key=jax.random.PRNGKey(0))
+replicated = jax.pmap(lambda x: x * 1.0)(jnp.full((jax.local_device_count(),), 0.5))
+params = replicated[0]  # as brax's PPO passes its parameters (`_unpmap`)
+lowered = []
+jax.monitoring.register_event_duration_secs_listener(lambda e, s, **kw: lowered.append(e) if e.endswith("jaxpr_to_mlir_module_duration") else None)
+ev.run_evaluation(params, {})
+first = len(lowered)
+for _ in range(2):
+    ev.run_evaluation(params, {})
+later = len(lowered) - first
+weak = jax.eval_shape(lambda s: s, running_statistics.init_state(jnp.zeros(3))).std_eps.weak_type
+print(json.dumps({"devices": jax.local_device_count(), "first": first, "later": later, "weak": weak}))
+"""
+
+
+@pytest.mark.parametrize("devices", [1, 2])
+def test_brax_evaluation_compiles_its_unroll_once(devices):
     """After `brax_ppo()`: the normaliser's initial `std_eps` is typed as every update returns it,
     and brax's evaluator, run first from its own initial state and then from the state its unroll
-    returned, with committed parameters as PPO passes them, lowers and compiles the unroll once (it
-    did twice: the first state was not committed to a device)."""
-    from brax import envs
-    from brax.envs.base import Env, State
-    from brax.training import acting
-    from brax.training.acme import running_statistics
-
-    compat.brax_ppo()
-    state = running_statistics.init_state(jnp.zeros(3))
-    assert not jax.eval_shape(lambda s: s, state).std_eps.weak_type
-
-    class Toy(Env):
-        observation_size, action_size, backend = 2, 2, "toy"
-
-        def reset(self, rng):
-            z = jnp.zeros(())
-            return State(pipeline_state=None, obs=jnp.zeros(2), reward=z, done=z, metrics={"x": z}, info={})
-
-        def step(self, s, action):
-            return s.replace(obs=s.obs + action, reward=jnp.sum(action), metrics={**s.metrics, "x": s.metrics["x"] + 1.0})
-
-    policy = lambda w: lambda obs, key: (w * jnp.ones_like(obs), {})  # noqa: E731
-    env = envs.training.wrap(Toy(), episode_length=4)
-    ev = acting.Evaluator(env, policy, num_eval_envs=2, episode_length=4, action_repeat=1, key=jax.random.PRNGKey(0))
-    params = jax.device_put(jnp.float32(0.5), jax.local_devices()[0])
-    lowered = []
-    listener = lambda event, secs, **kw: lowered.append(event) if event.endswith("jaxpr_to_mlir_module_duration") else None  # noqa: E731
-    jax.monitoring.register_event_duration_secs_listener(listener)
-    try:
-        ev.run_evaluation(params, {})  # lowers the unroll (and whatever else runs for the first time)
-        first = len(lowered)
-        for _ in range(2):  # from the state the unroll returned: nothing is lowered again
-            ev.run_evaluation(params, {})
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listener)
-    assert first >= 1 and len(lowered) == first
+    returned, with parameters placed as PPO places them (replicated over every device), lowers and
+    compiles the unroll once, on one device and on two (it did twice: the first state was not
+    committed to a device)."""
+    env = {**os.environ, "FABRAX_CPU_DEVICES": str(devices)}
+    out = subprocess.run([sys.executable, "-c", _BRAX_EVALUATION], capture_output=True, text=True, timeout=300, env=env)
+    assert out.returncode == 0, out.stderr[-2000:]
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["devices"] == devices and not got["weak"]
+    assert got["first"] >= 1 and got["later"] == 0
 
 
 def test_importing_the_rl_guide_prints_no_optional_backend_notices():
