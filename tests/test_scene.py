@@ -172,3 +172,15 @@ def test_rounded_scene_keeps_its_primitives():
     assert r.capacity == {"cuboids": 16, "cylinders": 8, "spheres": 8, "points": 0}
     pts = np.random.default_rng(0).uniform(-0.6, 1.0, (20, 3))
     assert np.allclose(sc.distance(r, pts), sc.distance(scene, pts))
+
+
+def test_padding_on_the_host_equals_padding_under_jit():
+    scene = sc.from_dict(SCENE)
+    host = scene.pad(cuboids=5, cylinders=3, spheres=2)
+    traced = jax.jit(lambda s: s.pad(cuboids=5, cylinders=3, spheres=2))(scene)
+    assert host.capacity == traced.capacity == {"cuboids": 5, "cylinders": 3, "spheres": 2, "points": 0}
+    for a, b in zip(jax.tree.leaves(host), jax.tree.leaves(traced), strict=True):
+        assert a.dtype == b.dtype
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert np.allclose(np.linalg.norm(np.asarray(host.cuboids.quat), axis=-1), 1.0)  # padded slots: the identity
+    assert scene.pad(cuboids=1) is scene  # nothing to grow

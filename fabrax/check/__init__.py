@@ -7,6 +7,6 @@ GFCS's reactive study, the skills and the RL env judge collisions with it too.
 """
 
 from fabrax.check.checker import RESOLUTION, CheckResult, check_path, densify
-from fabrax.check.clearance import state_clearances
+from fabrax.check.clearance import clearances, state_clearances
 
-__all__ = ["RESOLUTION", "CheckResult", "check_path", "densify", "state_clearances"]
+__all__ = ["RESOLUTION", "CheckResult", "check_path", "clearances", "densify", "state_clearances"]

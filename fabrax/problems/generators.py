@@ -7,7 +7,7 @@ import zlib
 import jax.numpy as jnp
 import numpy as np
 
-from fabrax.check.clearance import state_clearances
+from fabrax.check.clearance import bucketed, clearances
 from fabrax.problems.problem import Problem, make_problem
 from fabrax.robot.ik import solve_ik
 from fabrax.robot.kinematics import frame_pose
@@ -34,8 +34,8 @@ def shelf(center=(0.65, 0.0, 0.0), width=0.8, depth=0.35, heights=(0.25, 0.55, 0
 
 def valid_configs(robot: Robot, scene, qs: np.ndarray, margin: float = 0.02) -> np.ndarray:
     """Mask of configurations clear of the scene by `margin`, free of self-collision and within limits."""
-    env, slf, ok = state_clearances(robot, scene, jnp.asarray(qs, jnp.float32))
-    return np.asarray((env > margin) & (slf > 0.0) & ok)
+    env, slf, ok = clearances(robot, scene, qs)
+    return (env > margin) & (slf > 0.0) & ok
 
 
 def sample_configs(
@@ -47,6 +47,7 @@ def sample_configs(
     if around is not None:
         half = 0.5 * spread * (hi - lo)
         lo, hi = np.maximum(lo, np.asarray(around) - half), np.minimum(hi, np.asarray(around) + half)
+    scene = bucketed(scene)  # once, not per batch
     out = []
     for _ in range(200):
         qs = rng.uniform(lo, hi, (batch, robot.dof))

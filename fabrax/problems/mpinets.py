@@ -47,7 +47,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fabrax.check.clearance import state_clearances
+from fabrax.check.clearance import clearances
 from fabrax.problems.problem import Problem, flag
 from fabrax.robot.ik import solve_ik
 from fabrax.robot.kinematics import frame_pose
@@ -481,7 +481,7 @@ def _ik_in(robot, scene, frame, poses, rng, seeds: int = 16, offset: float = TCP
     qs, err = _ik_many(robot, frame, pos, quat, q0)
     qs, err = np.asarray(qs), np.asarray(err)
     flat = qs.reshape(-1, robot.dof)
-    env, slf, ok = (np.asarray(a).reshape(len(poses), seeds) for a in state_clearances(robot, scene, jnp.asarray(flat, jnp.float32)))
+    env, slf, ok = (a.reshape(len(poses), seeds) for a in clearances(robot, scene, flat))
     inside = np.all((qs > lo + 0.01) & (qs < hi - 0.01), axis=-1)
     good = (err < 1e-3) & inside & ok & (env > IK_MARGIN) & (slf > 0.0)
     for k in range(len(poses)):
@@ -496,7 +496,7 @@ def _neutral(robot, scene, rng, tries: int = 8, neutral=NEUTRAL) -> np.ndarray |
     lo, hi = np.asarray(robot.lower), np.asarray(robot.upper)
     for _ in range(tries):
         qs = np.clip(np.asarray(neutral) + rng.uniform(0, 0.25, (32, robot.dof)), lo, hi)
-        env, slf, ok = (np.asarray(a) for a in state_clearances(robot, scene, jnp.asarray(qs, jnp.float32)))
+        env, slf, ok = clearances(robot, scene, qs)
         good = np.flatnonzero(ok & (env > IK_MARGIN) & (slf > 0.0))
         if len(good):
             return qs[good[0]]

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from fabrax.check.clearance import state_clearances
+from fabrax.check.clearance import clearances
 from fabrax.robot.robot import Robot
 from fabrax.scene import Scene, from_dict, stack
 
@@ -97,8 +97,8 @@ def validate(robot: Robot, p: Problem, collision_margin: float = 0.0) -> None:
         dist = float(np.linalg.norm(p.goal_pose[0]))
         raise ValueError(f"{p.name}.goal_pose.position is {dist:.2f} m from the base of {robot.name}, out of its reach ({robot.reach:.2f} m)")
     checks = [("start_q", p.start_q)] + ([("goal_q", p.goal_q)] if p.goal_q is not None else [])
-    env, slf, _ = state_clearances(robot, p.scene, jnp.asarray(np.stack([q for _, q in checks]), jnp.float32))
-    for (field, _), e, s in zip(checks, np.asarray(env), np.asarray(slf), strict=True):
+    env, slf, _ = clearances(robot, p.scene, np.stack([q for _, q in checks]))
+    for (field, _), e, s in zip(checks, env, slf, strict=True):
         if e < -collision_margin:
             raise ValueError(f"{p.name}.{field} is in collision with the scene (penetration {-e * 1000:.1f} mm)")
         if s < -collision_margin:

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from fabrax.check.clearance import state_clearances
+from fabrax.check.clearance import clearances
 from fabrax.problems.problem import Problem
 from fabrax.robot.kinematics import point_kinematics
 from fabrax.robot.limits import max_acceleration
@@ -124,7 +124,7 @@ def sweeps(
             center = x[i] + u * (d0 + half * np.sqrt(2.0))
             obs = {"type": "cuboid", "center": center.tolist(), "quat_wxyz": turn.as_quat(scalar_first=True).tolist(), "size": [2 * half] * 3}
         scene = from_dict({"obstacles": [obs]}).pad(**COMMON_CAPACITY)
-        env, slf, ok = state_clearances(robot, scene, jnp.asarray(q0[None], jnp.float32))
+        env, slf, ok = clearances(robot, scene, q0[None])
         if float(env[0]) < 0.02 or float(slf[0]) < 0.0 or not bool(ok[0]):
             continue
         if float(stopping_margin(robot, scene, jnp.asarray(q0, jnp.float32), jnp.asarray(qd, jnp.float32), dt, share)) <= 0.0:

@@ -77,9 +77,11 @@ class Scene:
     def pad(self, **capacity: int) -> "Scene":
         """The same scene with at least the given capacity per kind."""
         cap = {k: max(v, capacity.get(k, 0)) for k, v in self.capacity.items()}
+        if cap == self.capacity:
+            return self
 
         def grow(tree, n):
-            return jax.tree.map(lambda a: jnp.concatenate([a, jnp.zeros((n - a.shape[0],) + a.shape[1:], a.dtype)]), tree)
+            return jax.tree.map(lambda a: _append(a, np.zeros((n - a.shape[0],) + a.shape[1:], a.dtype)), tree)
 
         return Scene(
             cuboids=_unit_quats(grow(self.cuboids, cap["cuboids"])),
@@ -89,10 +91,24 @@ class Scene:
         )
 
 
+def _traced(*arrays) -> bool:
+    return any(isinstance(a, jax.core.Tracer) for a in arrays)
+
+
+def _append(a, rows: np.ndarray):
+    """`a` with `rows` appended along its first axis; on the host for concrete arrays, where an eager
+    `jnp.concatenate` would compile one program per pair of shapes."""
+    if _traced(a):
+        return jnp.concatenate([a, jnp.asarray(rows)])
+    return jnp.asarray(np.concatenate([np.asarray(a), rows]))
+
+
 def _unit_quats(prims):
     """Padded slots get the identity rotation so that every quaternion is valid."""
-    q = jnp.where(prims.mask[:, None], prims.quat, jnp.array([1.0, 0.0, 0.0, 0.0], prims.quat.dtype))
-    return prims.replace(quat=q)
+    identity = np.array([1.0, 0.0, 0.0, 0.0], prims.quat.dtype)
+    if _traced(prims.mask, prims.quat):
+        return prims.replace(quat=jnp.where(prims.mask[:, None], prims.quat, identity))
+    return prims.replace(quat=jnp.asarray(np.where(np.asarray(prims.mask)[:, None], np.asarray(prims.quat), identity)))
 
 
 _FLOAT32_MAX = float(np.finfo(np.float32).max)  # scenes are stored in float32: larger values would become inf
