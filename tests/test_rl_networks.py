@@ -169,10 +169,10 @@ def test_normalised_observations_are_clipped_so_a_constant_feature_cannot_explod
 
 
 def test_convolutions_refuse_an_input_smaller_than_the_kernel():
-    from fabrax.rl.networks import patches3d, shift_conv3d
+    from fabrax.rl.networks import block_patches3d, shift_conv3d
 
     x = jnp.zeros((1, 3, 8, 8, 2))
     with pytest.raises(ValueError, match="smaller than the kernel 4"):
-        patches3d(x, 4, 2)
+        block_patches3d(x, 4, 2)
     with pytest.raises(ValueError, match="smaller than the kernel 4"):
         shift_conv3d(x, jnp.zeros((4, 4, 4, 2, 5)), 2)

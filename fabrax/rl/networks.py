@@ -16,8 +16,9 @@ In both cases PPO's KL between successive policies (brax's, on the pre-tanh Gaus
 by states whose squashed actions barely moved, and the clipped objective does not hold them back.
 
 XLA's CPU convolution, and its gradient above all, is slow; `Conv3D` therefore gathers each output
-voxel's k^3 input patch with strided slices and applies the kernel as one 2-D matrix product, the
-same linear map as `lax.conv_general_dilated` with VALID padding (tested against it). Dense layers
+voxel's input patch (`block_patches3d`: slices of the space-to-depth input, few kernels to compile)
+and applies the kernel as one 2-D matrix product, the same linear map as `lax.conv_general_dilated`
+with VALID padding (tested against it). Dense layers
 act on 2-D arrays only: on 5-D tensors their gradients were 7-20x slower here. A deployed guide
 (`fabrax.rl.policy.load_guide`, no gradients) convolves by `shift_conv3d` instead, the same map
 again: space-to-depth by a reshape, one matrix product, then a sum of shifted slices. Its forward
@@ -55,17 +56,34 @@ def _valid_out(spatial: tuple[int, ...], kernel: int, stride: int) -> list[int]:
     return out
 
 
-def patches3d(x: jax.Array, kernel: int, stride: int) -> jax.Array:
-    """(B, D, H, W, C) -> (B, D', H', W', kernel^3 C): each VALID output voxel's input patch,
-    ordered (offset along D, H, W, then channel) like a (k, k, k, C, F) kernel's rows."""
-    out = _valid_out(x.shape[1:4], kernel, stride)
-    parts = [
-        x[:, i : i + stride * (out[0] - 1) + 1 : stride, j : j + stride * (out[1] - 1) + 1 : stride, k : k + stride * (out[2] - 1) + 1 : stride]
-        for i in range(kernel)
-        for j in range(kernel)
-        for k in range(kernel)
-    ]
-    return jnp.concatenate(parts, axis=-1)
+def block_patches3d(x: jax.Array, kernel: int, stride: int) -> jax.Array:
+    """(B, D, H, W, C) -> (B, D', H', W', (a s)^3 C) with a = ceil(kernel / stride): each VALID
+    output voxel's input patch, gathered block-wise. Writing a kernel offset i = s a + b (s the
+    stride, b < s), output voxel o reads input s (o + a) + b, i.e. block o + a of the space-to-depth
+    input y[u, b] = x[s u + b]: a^3 slices of y (8 for Table 3.4's strided layers) instead of k^3
+    (64 for a 4-kernel) strided slices of x, each one more kernel for XLA to compile, forward and
+    backward. Rows are ordered (a along D, H, W, b along D, H, W, channel) as `block_kernel` orders
+    the kernel's; offsets past the kernel (s not dividing k) and the zero padding to whole blocks
+    meet its zero rows."""
+    s, batch, c = stride, x.shape[0], x.shape[-1]
+    out = _valid_out(x.shape[1:4], kernel, s)
+    ka = -(-kernel // s)
+    blocks = [o + ka - 1 for o in out]
+    need = [b * s for b in blocks]
+    x = jnp.pad(x, [(0, 0)] + [(0, max(0, m - n)) for m, n in zip(need, x.shape[1:4])] + [(0, 0)])[:, : need[0], : need[1], : need[2]]
+    y = x.reshape(batch, blocks[0], s, blocks[1], s, blocks[2], s, c).transpose(0, 1, 3, 5, 2, 4, 6, 7)
+    y = y.reshape(batch, *blocks, s**3 * c)
+    parts = [y[:, i : i + out[0], j : j + out[1], m : m + out[2]] for i in range(ka) for j in range(ka) for m in range(ka)]
+    return jnp.concatenate(parts, axis=-1) if len(parts) > 1 else parts[0]
+
+
+def block_kernel(w: jax.Array, stride: int) -> jax.Array:
+    """A (k, k, k, C, F) kernel as the ((a s)^3 C, F) matrix `block_patches3d`'s rows meet: zero
+    rows for offsets past k."""
+    k, c, f = w.shape[0], w.shape[3], w.shape[4]
+    s, ka = stride, -(-w.shape[0] // stride)
+    wb = jnp.pad(w, [(0, ka * s - k)] * 3 + [(0, 0), (0, 0)]).reshape(ka, s, ka, s, ka, s, c, f)
+    return wb.transpose(0, 2, 4, 1, 3, 5, 6, 7).reshape(ka**3 * s**3 * c, f)
 
 
 def shift_conv3d(x: jax.Array, w: jax.Array, stride: int) -> jax.Array:
@@ -105,7 +123,7 @@ def _as_matrix(init):
 
 
 class Conv3D(nn.Module):
-    """A VALID 3-D convolution as strided-slice patches times a 2-D kernel matrix (`shift`: by
+    """A VALID 3-D convolution as block patches times a 2-D kernel matrix (`shift`: by
     `shift_conv3d`, the same map with the faster forward pass and the slower gradient)."""
 
     features: int
@@ -120,8 +138,8 @@ class Conv3D(nn.Module):
         b = self.param("bias", nn.initializers.zeros, (self.features,))
         if self.shift:
             return shift_conv3d(x, w, self.stride) + b
-        p = patches3d(x, self.kernel, self.stride)
-        y = p.reshape(-1, p.shape[-1]) @ w.reshape(-1, self.features) + b
+        p = block_patches3d(x, self.kernel, self.stride)
+        y = p.reshape(-1, p.shape[-1]) @ block_kernel(w, self.stride) + b
         return y.reshape(*p.shape[:-1], self.features)
 
 
