@@ -294,6 +294,16 @@ TABLES = {
             "rl_pretrained",
         ),
         Table(
+            "Where the env's pure fabric is trapped: the shipped guide on the problems it fails (fabrics_guided_rl_thesis §4)",
+            (
+                f"{T41_BENCH} method=rl_guide method.scripted=switch method.name=fabric_switch out=bench_out/t41m/fabric_switch",
+                f"{T41_BENCH} method=rl_guide method.name=rl_guide_pretrained method.checkpoint=pretrained out=bench_out/t41m/rl_guide_pretrained",
+                "python experiments/trapped.py bench_out/t41m/fabric_switch bench_out/t41m/rl_guide_pretrained --out docs/results/trapped",
+            ),
+            {"main": lambda r: _script("trapped").sentence(r), "table": lambda r: _script("trapped").markdown(r)},
+            "trapped",
+        ),
+        Table(
             "GFCS reactive re-execution and warm-started re-planning (gfcs_paper §V)",
             tuple(
                 f"python experiments/gfcs.py class_name={c} evaluate=[] reactive.method=gfcs reactive.results=bench_out/mbm/gfcs "

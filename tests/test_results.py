@@ -83,3 +83,26 @@ def test_table_4_1_merge_adds_a_run_and_keeps_the_others(tmp_path):
     assert result["methods"]["gfcs"]["all"]["success_pct"] == 50.0 and result["methods"]["gfcs_pose"]["all"]["success_pct"] == 75.0
     t41.main([str(run("c", "gfcs", [True])), "--out", str(out), "--merge"])
     assert json.loads(out.with_suffix(".json").read_text())["methods"]["gfcs"]["all"]["success_pct"] == 100.0
+
+
+def test_trapped_counts_what_the_guide_gains_and_loses(tmp_path):
+    """experiments/trapped.py: problems the fabric ends without goal and collision (trapped), and
+    what the guide does on them and on the ones the fabric reaches."""
+    spec = importlib.util.spec_from_file_location("trapped", ROOT / "experiments" / "trapped.py")
+    trapped = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(trapped)
+
+    def row(name, kind, success, collision):
+        return {"problem": name, "problem_type": kind, "success": success, "collision": collision, "valid_problem": True}
+
+    fabric = {r["problem"]: r for r in [row("a", "task_oriented", False, False), row("b", "task_oriented", False, False),
+                                         row("c", "task_oriented", True, False), row("d", "neutral_goal", False, True)]}  # fmt: skip
+    guide = {r["problem"]: r for r in [row("a", "task_oriented", True, False), row("b", "task_oriented", False, True),
+                                        row("c", "task_oriented", False, False), row("d", "neutral_goal", True, False)]}  # fmt: skip
+    got = trapped.compare(fabric, guide)
+    assert got["task_oriented"] == {
+        "n": 3, "fabric_trapped": 2, "fabric_reached": 1, "guide_reached_trapped": 1, "guide_collided_trapped": 1, "guide_lost_reached": 1,
+    }  # fmt: skip
+    assert got["neutral_goal"]["fabric_trapped"] == 0 and got["all"]["n"] == 4  # a collision is not a trap
+    with pytest.raises(SystemExit, match="lacks 1"):
+        trapped.compare(fabric, {k: v for k, v in guide.items() if k != "d"})
