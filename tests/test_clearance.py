@@ -1,8 +1,8 @@
 """`clearances`, the host callers' form of the exact checker's state test."""
 
+import jax.monitoring as monitoring
 import jax.numpy as jnp
 import numpy as np
-from jax._src import monitoring
 
 from fabrax.check import clearances, state_clearances
 from fabrax.scene import from_dict

@@ -172,6 +172,10 @@ def test_rounded_scene_keeps_its_primitives():
     assert r.capacity == {"cuboids": 16, "cylinders": 8, "spheres": 8, "points": 0}
     pts = np.random.default_rng(0).uniform(-0.6, 1.0, (20, 3))
     assert np.allclose(sc.distance(r, pts), sc.distance(scene, pts))
+    assert scene.rounded(at_least=8).capacity == {"cuboids": 16, "cylinders": 8, "spheres": 8, "points": 0}
+    one_box = sc.from_dict({"obstacles": SCENE["obstacles"][:1]})
+    assert one_box.capacity["cylinders"] == 0
+    assert one_box.rounded(at_least=8).capacity == {"cuboids": 8, "cylinders": 8, "spheres": 8, "points": 0}
 
 
 def test_padding_on_the_host_equals_padding_under_jit():

@@ -15,7 +15,7 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 
-from fabrax.check.clearance import bucketed, state_clearances
+from fabrax.check.clearance import state_clearances
 from fabrax.robot.robot import Robot
 from fabrax.scene import Scene
 
@@ -59,7 +59,7 @@ def check_path(robot: Robot, scene: Scene, q: np.ndarray, margin: float = 0.0, r
     pad = (-n) % _CHUNK
     padded = np.concatenate([dense, np.repeat(dense[-1:], pad, 0)]) if pad else dense
     env, slf, lim = [], [], []
-    scene = bucketed(scene)  # one compiled program for scenes of similar size
+    scene = scene.rounded(at_least=8)  # one compiled program for scenes of similar size (`clearances`)
     for k in range(0, len(padded), _CHUNK):
         e, s, l_ = state_clearances(robot, scene, jnp.asarray(padded[k : k + _CHUNK], jnp.float32))
         env.append(np.asarray(e))

@@ -26,25 +26,17 @@ def state_clearances(robot: Robot, scene: Scene, qs: jax.Array):
     return jax.vmap(one)(qs)
 
 
-def bucketed(scene: Scene, multiple: int = 8) -> Scene:
-    """The scene with each primitive kind's capacity rounded up to a multiple, at least one multiple
-    (a point cloud's only when it has one): `state_clearances` compiles once per shape, and scenes
-    read from files or drawn by generators each have their own obstacle counts; bucketed, scenes
-    of similar size share one program. Padded slots are masked out."""
-    cap = {k: max(multiple, -(-v // multiple) * multiple) for k, v in scene.capacity.items() if k != "points"}
-    return scene.pad(**cap, points=-(-scene.capacity["points"] // multiple) * multiple)
-
-
 def clearances(robot: Robot, scene: Scene, qs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`state_clearances` for callers on the host (problem loading, rejection sampling, path checks):
-    numpy results, the scene `bucketed` and the rows padded with the last one to a power of two (at
-    least 8), so that one compiled program serves scenes and batches of similar size. Every row's
-    values are those of the unpadded call."""
+    numpy results, the scene `rounded` to 8 slots per primitive kind (at least 8: scenes read from
+    files or drawn by generators each have their own obstacle counts) and the rows padded with the
+    last one to a power of two (at least 8), so that one compiled program serves scenes and batches
+    of similar size. Padded slots are masked out: every row's values are the unpadded call's."""
     qs = np.asarray(qs, np.float32).reshape(-1, robot.dof)
     m = len(qs)
     if m == 0:
         return np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros(0, bool)
     rows = max(8, 1 << (m - 1).bit_length())
     padded = np.concatenate([qs, np.repeat(qs[-1:], rows - m, 0)]) if rows > m else qs
-    env, slf, ok = state_clearances(robot, bucketed(scene), jnp.asarray(padded))
+    env, slf, ok = state_clearances(robot, scene.rounded(at_least=8), jnp.asarray(padded))
     return np.asarray(env)[:m], np.asarray(slf)[:m], np.asarray(ok)[:m]

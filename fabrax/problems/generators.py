@@ -7,7 +7,7 @@ import zlib
 import jax.numpy as jnp
 import numpy as np
 
-from fabrax.check.clearance import bucketed, clearances
+from fabrax.check.clearance import clearances
 from fabrax.problems.problem import Problem, make_problem
 from fabrax.robot.ik import solve_ik
 from fabrax.robot.kinematics import frame_pose
@@ -47,7 +47,7 @@ def sample_configs(
     if around is not None:
         half = 0.5 * spread * (hi - lo)
         lo, hi = np.maximum(lo, np.asarray(around) - half), np.minimum(hi, np.asarray(around) + half)
-    scene = bucketed(scene)  # once, not per batch
+    scene = scene.rounded(at_least=8)  # as `clearances` pads it, once, not per batch
     out = []
     for _ in range(200):
         qs = rng.uniform(lo, hi, (batch, robot.dof))

@@ -69,10 +69,13 @@ class Scene:
         c = self.capacity
         return c["cuboids"] + c["cylinders"] + c["spheres"] + c["points"]
 
-    def rounded(self, multiple: int = 8) -> "Scene":
+    def rounded(self, multiple: int = 8, at_least: int = 0) -> "Scene":
         """The same scene with every kind's capacity rounded up to a multiple: scenes of similar
-        size then share one shape (one compiled solver) without the cost of a larger common one."""
-        return self.pad(**{k: -(-v // multiple) * multiple for k, v in self.capacity.items()})
+        size then share one shape (one compiled solver) without the cost of a larger common one.
+        `at_least` slots for every primitive kind (not the point cloud) give a scene without
+        cylinders, say, the shape of one with a few (host checks that compile once per shape)."""
+        cap = {k: -(-v // multiple) * multiple for k, v in self.capacity.items()}
+        return self.pad(**{k: v if k == "points" else max(v, at_least) for k, v in cap.items()})
 
     def pad(self, **capacity: int) -> "Scene":
         """The same scene with at least the given capacity per kind."""
