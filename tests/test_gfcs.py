@@ -218,6 +218,34 @@ def test_oversampled_warm_start_keeps_the_lowest_energy_samples(panda):
         WarmStart(oversample=0)
 
 
+def test_replayed_warm_start_draws_the_buffer(panda):
+    """warm.replay p: the last round(p x population) candidates are buffered solutions (exactly,
+    without noise; within the noise's reach with it), the rest the model's SGLD particles, which
+    are then the same draw as a model-only population of that size."""
+    from fabrax.planners.gfcs.selfsup import SelfSupConfig, WarmStart, learned_samples, new_learner
+
+    cfg = SelfSupConfig(hidden=32, layers=2)
+    learner = new_learner(10, 14, cfg)
+    learner.targets = np.random.default_rng(0).uniform(0.1, 0.9, (5, 14)).astype(np.float32)
+    x, key = jnp.linspace(0.0, 1.0, 10), jax.random.PRNGKey(3)
+    unit = lambda z: np.asarray(jax.nn.sigmoid(z)).reshape(len(z), 14)  # noqa: E731  (to_commands, normalised)
+    nearest = lambda u: np.min(np.abs(u[:, None] - learner.targets[None]).max(-1), axis=1)  # noqa: E731
+
+    half = learned_samples(learner, panda, x, key, 8, 2, dataclasses.replace(cfg, warm=WarmStart(replay=0.5, replay_noise=0.0)))
+    assert half.shape == (8, 2, 7)
+    np.testing.assert_allclose(nearest(unit(half[4:])), 0.0, atol=1e-5)
+    model_only = learned_samples(learner, panda, x, key, 4, 2, cfg)
+    np.testing.assert_allclose(np.asarray(half[:4]), np.asarray(model_only), rtol=1e-5, atol=1e-5)
+    assert nearest(unit(half[:4])).min() > 1e-3  # SGLD particles are not buffer rows
+
+    noisy = unit(learned_samples(learner, panda, x, key, 64, 2, dataclasses.replace(cfg, warm=WarmStart(replay=1.0, replay_noise=0.05))))
+    d = nearest(noisy)
+    assert d.max() < 0.05 * 6 and d.mean() > 0.01  # moved by the noise, never far from a buffered solution
+    for bad, match in (({"replay": 1.5}, "warm.replay must be a share"), ({"replay_noise": -0.1}, "warm.replay_noise must be")):
+        with pytest.raises(ValueError, match=match):
+            WarmStart(**bad)
+
+
 def test_problem_encoding(panda):
     from fabrax.planners.gfcs.encoding import Encoding
 
@@ -232,6 +260,11 @@ def test_problem_encoding(panda):
     assert d[far] == pytest.approx(1.0)
     x = enc.context(panda, jnp.asarray(READY), jnp.zeros(7), jnp.asarray(READY), from_dict({"obstacles": [box]}))
     assert x.shape == (21 + len(lattice),) and bool(jnp.all(jnp.isfinite(x)))
+    # scene_scale weighs d_E alone: the joint part is unchanged, 0 leaves start, velocity and goal
+    for scale in (0.1, 0.0):
+        xs = Encoding(scene_scale=scale).context(panda, jnp.asarray(READY), jnp.zeros(7), jnp.asarray(READY), from_dict({"obstacles": [box]}))
+        np.testing.assert_array_equal(np.asarray(xs[:21]), np.asarray(x[:21]))
+        np.testing.assert_allclose(np.asarray(xs[21:]), scale * d, rtol=1e-6)
 
 
 @pytest.mark.slow

@@ -5,6 +5,15 @@ distance to the nearest obstacle surface; it is computed from the scene's
 primitives (exact signed distances, negative inside) or a point cloud, so
 scenes of any size give one fixed-length vector. Distances are clipped to
 [-clip_inside, clip_outside] m so that far-away structure does not dominate.
+
+`scene_scale` weighs d_E against the joint part of x_c. Trained on one class's
+~50 scenes (Algorithm 2's setting), the energy model's first layer otherwise
+fits the ~1,900 distances, which vary little within a class, before the start
+and goal, and its samples generalise to new problems no better than the
+class's buffered solutions drawn at random; at a small weight the start and
+goal lead and the scene still enters (chosen on train problems the sampler
+did not learn from, `experiments/gfcs_sampler.py`). 1 is the paper's plain
+concatenation.
 """
 
 from __future__ import annotations
@@ -26,6 +35,7 @@ class Encoding:
     spacing: float = 0.15  # m (gfcs_paper)
     clip_inside: float = 0.15
     clip_outside: float = 1.0
+    scene_scale: float = 1.0  # multiplies d_E in x_c (0: condition on start, velocity and goal only)
 
     def lattice(self) -> np.ndarray:
         axes = [np.arange(lo, hi + 1e-9, self.spacing) for lo, hi in zip(self.low, self.high, strict=True)]
@@ -41,8 +51,9 @@ class Encoding:
         return jnp.clip(d, -self.clip_inside, self.clip_outside)
 
     def context(self, robot, start_q, start_qd, goal_q, scene: Scene) -> jax.Array:
-        """x_c with joint positions normalised to [0, 1] within the limits and velocities by their limits."""
+        """x_c with joint positions normalised to [0, 1] within the limits, velocities by their limits,
+        and d_E times `scene_scale`."""
         span = robot.upper - robot.lower
         return jnp.concatenate(
-            [(start_q - robot.lower) / span, start_qd / robot.velocity, (goal_q - robot.lower) / span, self.scene_distances(scene)]
+            [(start_q - robot.lower) / span, start_qd / robot.velocity, (goal_q - robot.lower) / span, self.scene_scale * self.scene_distances(scene)]
         )

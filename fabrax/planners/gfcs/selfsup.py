@@ -43,14 +43,22 @@ class WarmStart:
     not learn from; `experiments/gfcs_sampler.py`); `sgld` None runs the training negatives' SGLD.
     `oversample` k > 1 draws k x population particles and keeps the population lowest in energy,
     the model's own ranking of its samples (the paper's "candidate solution with the lowest cost"
-    read as the lowest energy)."""
+    read as the lowest energy). `replay` in [0, 1] is the share of the population drawn instead
+    from the buffer's solutions at random, each moved by N(0, replay_noise^2) in the normalised
+    joint space: the class's prior over solutions without the model's conditioning (1: no model)."""
 
     sgld: SGLDConfig | None = SGLDConfig(steps=100, step=0.01, noise=0.0)
     oversample: int = 1
+    replay: float = 0.0
+    replay_noise: float = 0.1
 
     def __post_init__(self):
         if not isinstance(self.oversample, int) or self.oversample < 1:
             raise ValueError(f"warm.oversample must be a positive integer, got {self.oversample!r}")
+        if not 0.0 <= self.replay <= 1.0:
+            raise ValueError(f"warm.replay must be a share in [0, 1], got {self.replay!r}")
+        if self.replay_noise < 0.0:
+            raise ValueError(f"warm.replay_noise must be >= 0, got {self.replay_noise!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -186,13 +194,24 @@ def require_joint_goals(problems: list) -> None:
 
 
 def learned_samples(learner: Learner, robot, context: jax.Array, key: jax.Array, population: int, n_commands: int, cfg: SelfSupConfig):
-    """Warm-start candidates from SGLD on the energy model (`cfg.warm`), in the solver's unconstrained space."""
+    """Warm-start candidates from SGLD on the energy model and, for `cfg.warm.replay`, the buffer,
+    in the solver's unconstrained space."""
     warm = cfg.warm
-    u = sgld(learner.model, context, key, population * warm.oversample, warm.sgld or cfg.sgld)
-    if warm.oversample > 1:
-        energy = learner.model(jnp.broadcast_to(context, (len(u), context.shape[-1])), u)
-        u = u[jnp.argsort(energy)[:population]]
-    u = u.reshape(population, n_commands, robot.dof)
+    n_replay = round(warm.replay * population) if len(learner.targets) else 0
+    n_model = population - n_replay
+    parts = []
+    if n_model:
+        u = sgld(learner.model, context, key, n_model * warm.oversample, warm.sgld or cfg.sgld)
+        if warm.oversample > 1:
+            energy = learner.model(jnp.broadcast_to(context, (len(u), context.shape[-1])), u)
+            u = u[jnp.argsort(energy)[:n_model]]
+        parts.append(u)
+    if n_replay:
+        k_pick, k_noise = jax.random.split(jax.random.fold_in(key, 1))
+        buffer = jnp.asarray(learner.targets)
+        u = buffer[jax.random.randint(k_pick, (n_replay,), 0, len(buffer))]
+        parts.append(jnp.clip(u + warm.replay_noise * jax.random.normal(k_noise, u.shape), 0.0, 1.0))
+    u = jnp.concatenate(parts).reshape(population, n_commands, robot.dof)
     return to_unconstrained(robot.lower + u * (robot.upper - robot.lower), robot.lower, robot.upper, eps=1e-3)
 
 
