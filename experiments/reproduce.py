@@ -222,7 +222,7 @@ TABLES = {
             )
             + tuple(
                 f"python experiments/gfcs.py class_name={c} reactive.n_obstacles=0 method.hand_mass=5.304 evaluate=[gfcs_learned] "
-                f"encoding.scene_scale=1 progress=false hydra.run.dir=bench_out/mbm_learned/{c}"
+                f"progress=false hydra.run.dir=bench_out/mbm_learned/{c}"
                 for c in MBM_CLASSES
             )
             + ("python experiments/bench_table.py bench_out/mbm/* bench_out/mbm_learned/* --out docs/results/mbm",),
