@@ -1,13 +1,14 @@
 """Several learned GFCS samplers side by side, class by class, from `gfcs_sampler.py` outputs.
 
     python experiments/gfcs_sampler_compare.py 'd_E x0.1=bench_out/val40/*_s01_sampler.json' \\
-        'd_E x1=bench_out/val40/*_s1_sampler.json' --out docs/results/gfcs_sampler/weight
+        'd_E x1=bench_out/val40/*_s1_sampler.json' --out docs/results/gfcs_sampler/weight/compare
 
 Each LABEL=GLOB[,GLOB...] names one setting and the `gfcs_sampler.py` JSON files (one per class)
 it was measured in; a class's row gives, per setting, the learned first batch's success, EE length and
 change against the uniform first batch measured in the same file, and the median sample-to-solution
-distance. The last row is the mean over the classes every setting has, the figure a setting shared
-by all classes is chosen on (tune on train problems the samplers did not learn from).
+distance. The uniform column is the first setting's file (each file measures its own). The last row
+is the mean over the classes every setting has, the figure a setting shared by all classes is chosen
+on (tune on train problems the samplers did not learn from).
 Writes OUT.json and OUT.md.
 """
 
@@ -46,7 +47,7 @@ def load(files: list[Path]) -> dict[str, dict]:
                 "problems": d["problems"],
                 "run": d["run"],
             }
-        except (OSError, ValueError, KeyError) as e:
+        except (OSError, ValueError, KeyError, TypeError) as e:
             raise SystemExit(f"{f}: not a gfcs_sampler.py output ({e.__class__.__name__}: {e})") from None
         if seen.setdefault(d["class"], f) != f:
             raise SystemExit(f"{f}: a second file for class {d['class']} (first {seen[d['class']]})")

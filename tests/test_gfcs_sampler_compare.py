@@ -39,9 +39,10 @@ def test_rows_per_class_and_mean_over_shared_classes(tmp_path):
 def test_refuses_bad_settings(tmp_path):
     with pytest.raises(SystemExit, match="no file matches"):
         cmp.main([f"a={tmp_path}/none*.json", "--out", str(tmp_path / "o")])
-    (tmp_path / "bad.json").write_text("{}")
-    with pytest.raises(SystemExit, match="not a gfcs_sampler.py output"):
-        cmp.main([f"a={tmp_path}/bad.json", "--out", str(tmp_path / "o")])
+    for text in ("{}", "[1, 2]", "not json"):
+        (tmp_path / "bad.json").write_text(text)
+        with pytest.raises(SystemExit, match="not a gfcs_sampler.py output"):
+            cmp.main([f"a={tmp_path}/bad.json", "--out", str(tmp_path / "o")])
     _write(tmp_path / "box1.json", "box", 1.0, 0.9)
     _write(tmp_path / "box2.json", "box", 1.0, 0.8)
     with pytest.raises(SystemExit, match="a second file for class box"):
